@@ -1,0 +1,57 @@
+"""Parameters of one base module: an X-layout quadrotor with four connectors (paper §II, Table II)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import ConfigDict, Field, model_validator
+from pydantic.dataclasses import dataclass
+
+from groundstation import config
+
+_STRICT = ConfigDict(extra="forbid")
+
+
+@dataclass(frozen=True, config=_STRICT)
+class ModuleParams:
+    """Physical parameters of one module. Defaults are the paper's Table II plus a documented ``u_max``.
+
+    The downwash capsule of module ``i`` is the segment ``o_i - mu R_i e3, mu in [capsule_a, capsule_b]``
+    with radius ``r``; two modules clear each other when their segments are at least ``2 r`` apart.
+    """
+
+    mass: float = Field(0.24, gt=0)
+    """``m``: module mass, kg."""
+    c_f: float = Field(3.87e-7, gt=0)
+    """Thrust coefficient: rotor thrust ``f = c_f u``, N per rad^2/s^2."""
+    c_m: float = Field(1.06e-8, gt=0)
+    """Drag-torque coefficient: rotor yaw torque ``(-1)^q c_m u``, N m per rad^2/s^2."""
+    l_arm: float = Field(0.06, gt=0)
+    """Arm length from module centre to each rotor (X layout, rotors at 45 degrees), m."""
+    l_c: float = Field(0.11, gt=0)
+    """Distance from the module centre to each connector, m (lattice pitch is ``2 l_c``)."""
+    r: float = Field(0.095, gt=0)
+    """Capsule radius of the downwash volume, m."""
+    u_max: float = Field(4.0e6, gt=0)
+    """Upper bound of each rotor input ``u = Omega^2``, rad^2/s^2. Not in the paper: 4.0e6 gives a
+    per-module thrust of ``4 c_f u_max`` = 6.19 N, a thrust-to-weight ratio of 2.63."""
+    capsule_a: float = Field(0.0475, ge=0)
+    """Start of the capsule axis below the module centre, m (paper: ``r / 2``)."""
+    capsule_b: float = Field(0.6475, gt=0)
+    """End of the capsule axis below the module centre, m (paper: ``r / 2 + 10 l_arm``)."""
+
+    @model_validator(mode="after")
+    def _capsule_ordered(self) -> ModuleParams:
+        if self.capsule_b <= self.capsule_a:
+            raise ValueError("capsule_b must be greater than capsule_a")
+        return self
+
+    @property
+    def max_thrust_per_module(self) -> float:
+        """Largest thrust one module can produce, N."""
+        return 4.0 * self.c_f * self.u_max
+
+
+def load_module_params(path: str | Path) -> ModuleParams:
+    """Load a module file such as ``configs/modules/paper_table2.toml`` (TOML, keys as :class:`ModuleParams`)."""
+    return config.load(ModuleParams, path)

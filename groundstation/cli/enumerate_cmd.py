@@ -1,0 +1,78 @@
+"""``groundstation enumerate``: non-isomorphic configurations per number of modules (paper §III)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from groundstation.assembly.lattice import group_matrices
+from groundstation.cli.common import progress_bar, stderr_console, writable_output
+from groundstation.design.candidates import SUFFIXES, write_candidates
+from groundstation.design.enumeration import SCHEMES, Level, SamplingPolicy, enumerate_levels
+from groundstation.errors import UsageError
+
+
+@click.command("enumerate")
+@click.argument("n", type=int)
+@click.option("--symmetry", default="C4", show_default=True,
+              help="Isomorphism group: C4 (rotations, paper), D4 (rotations and mirrors) or none.")
+@click.option("--sample", "sample", type=int, default=None, metavar="N_n",
+              help="Keep at most N_n configurations per level, drawn without replacement (Algorithm 1).")
+@click.option("--sigma", type=float, default=1.0, show_default=True,
+              help="Width of the Gaussian weight on the radius of gyration, in module pitches.")
+@click.option("--scheme", default="compact", show_default=True,
+              help=f"Sampling weights: {', '.join(SCHEMES)}.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the sampling.")
+@click.option("--out", "out", default=None, metavar="FILE",
+              help="Write the configurations of every level (.json: readable codes; .npz: compact arrays).")
+@click.option("--draw", "draw", default=None, metavar="FILE.png",
+              help="Draw every configuration of level N (like the paper's Fig. 3).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object per level instead of a table.")
+def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, scheme: str, seed: int,
+                      out: str | None, draw: str | None, as_json: bool) -> None:
+    """Enumerate non-isomorphic configurations of 1..N modules on the square lattice."""
+    group_matrices(symmetry)  # validates the name before any work
+    sampling = SamplingPolicy(keep=sample, sigma=sigma, scheme=scheme, seed=seed) if sample is not None else None
+    if sample is None and (scheme != "compact" or sigma != 1.0 or seed != 0):
+        raise UsageError("--sigma, --scheme and --seed only apply with --sample")
+    out_path = writable_output(out, SUFFIXES) if out else None
+    draw_path = writable_output(draw, (".png", ".svg", ".pdf")) if draw else None
+    if n < 1:
+        raise UsageError(f"number of modules must be at least 1, got {n}")
+
+    console = stderr_console()
+    levels: list[Level] = []
+    table = Table(title=f"Non-isomorphic configurations ({symmetry}{', sampled' if sampling else ''})")
+    for col in ("n", "available", "non-isomorphic", "kept", "CPU s", "peak MiB"):
+        table.add_column(col, justify="right")
+    with progress_bar(console) as progress:
+        task = progress.add_task("enumerating levels", total=n)
+        for level in enumerate_levels(n, symmetry, sampling):
+            levels.append(level)
+            progress.advance(task)
+            row = {"n": level.n, "available": level.available, "non_isomorphic": level.non_isomorphic,
+                   "kept": level.kept, "cpu_s": round(level.cpu_s, 4), "peak_rss_mb": round(level.peak_rss_mb, 1)}
+            if as_json:
+                click.echo(json.dumps(row))
+            else:
+                table.add_row(*(str(v) for v in row.values()))
+        if out_path is not None:
+            total = sum(lv.kept for lv in levels) if out_path.suffix == ".json" else None
+            wtask = progress.add_task(f"writing {out_path.name}", total=total)
+            write_candidates(out_path, levels, symmetry, sampling, progress=lambda k: progress.advance(wtask, k))
+    if not as_json:
+        Console().print(table)
+    if draw_path is not None:
+        from groundstation.design.drawing import draw_level
+
+        last = levels[-1]
+        if last.kept > 1000:
+            raise UsageError(f"level n={last.n} has {last.kept} configurations, too many to draw (at most 1000)")
+        draw_level(last.topologies(), draw_path,
+                   f"{last.kept} non-isomorphic configurations of {last.n} modules ({symmetry})")
+        click.echo(f"drawing: {draw_path}", err=True)
+    if out_path is not None:
+        click.echo(f"configurations: {out_path}", err=True)
