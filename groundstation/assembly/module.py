@@ -40,10 +40,16 @@ class ModuleParams:
     capsule_b: float = Field(0.6475, gt=0)
     """End of the capsule axis below the module centre, m (paper: ``r / 2 + 10 l_arm``)."""
 
+    inertia: tuple[float, float, float] = (6.0e-4, 6.0e-4, 1.1e-3)
+    """Principal moments of inertia of one module about its centre, module frame, kg m^2. Not in the paper:
+    estimated as a 0.17 m square plate of mass ``m``; identify it on the real module before flight."""
+
     @model_validator(mode="after")
     def _capsule_ordered(self) -> ModuleParams:
         if self.capsule_b <= self.capsule_a:
             raise ValueError("capsule_b must be greater than capsule_a")
+        if min(self.inertia) <= 0:
+            raise ValueError("inertia must be positive")
         return self
 
     @property

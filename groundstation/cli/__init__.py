@@ -13,6 +13,7 @@ import click
 
 from groundstation import __version__
 from groundstation.cli.enumerate_cmd import enumerate_command
+from groundstation.cli.optimize_cmd import optimize_command
 from groundstation.errors import GroundstationError
 
 EXIT_BAD_INPUT = 2
@@ -26,6 +27,7 @@ def cli() -> None:
 
 
 cli.add_command(enumerate_command)
+cli.add_command(optimize_command)
 
 
 def main(argv: list[str] | None = None) -> None:

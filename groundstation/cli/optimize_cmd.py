@@ -1,0 +1,76 @@
+"""``groundstation optimize``: the downwash-aware NLP for one configuration (paper §IV-B)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from groundstation.assembly.assembly_file import save_assembly
+from groundstation.assembly.module import ModuleParams, load_module_params
+from groundstation.assembly.topology import Topology, TopologyError
+from groundstation.cli.common import writable_output
+from groundstation.design.optimize import SolverOptions, optimize
+from groundstation.design.task import load_task
+from groundstation.errors import UsageError
+
+EXIT_INFEASIBLE = 1
+
+
+@click.command("optimize")
+@click.argument("tasks", type=click.Path(dir_okay=False))
+@click.option("--topology", "code", required=True, help="Topology code, e.g. oE or oS(W)E (see 'enumerate --out').")
+@click.option("--modules", "modules", default=None, type=click.Path(dir_okay=False),
+              help="Module parameter file (default: the paper's Table II).")
+@click.option("--starts", "starts", default="10,20,5", show_default=True,
+              help="Multi-start: tilt of the outermost module of each starting bowl, degrees (0 = flat start).")
+@click.option("--fixed-yaw", is_flag=True, help="Do not optimize the body yaw (the paper's formulation).")
+@click.option("--out", default=None, metavar="FILE.json", help="Write the assembly file.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object.")
+def optimize_command(tasks: str, code: str, modules: str | None, starts: str, fixed_yaw: bool, out: str | None,
+                     as_json: bool) -> int:
+    """Optimize connector angles and inputs of one configuration for a task's wrench set."""
+    out_path = writable_output(out, (".json",)) if out else None
+    try:
+        topo = Topology.from_code(code)
+    except TopologyError as exc:
+        raise UsageError(f"--topology: {exc}") from None
+    try:
+        rims = tuple(float(f) for f in starts.split(","))
+    except ValueError:
+        raise UsageError(f"--starts: expected comma-separated degrees, got {starts!r}") from None
+    params = load_module_params(modules) if modules else ModuleParams()
+    task = load_task(tasks)
+    wrenches, weights = task.wrenches_for(topo.n, params)
+    design = optimize(topo, params, wrenches, weights, SolverOptions(rim_tilts_deg=rims, free_yaw=not fixed_yaw))
+    record = design.record(task.name)
+    if out_path is not None:
+        save_assembly(out_path, record)
+    if as_json:
+        click.echo(json.dumps(record))
+    else:
+        _print_summary(design, task.name)
+    if out_path is not None:
+        click.echo(f"assembly: {out_path}", err=True)
+    if not design.feasible:
+        click.echo(f"groundstation: no feasible design for {code} ({design.status}; "
+                   f"residual {design.verification.max_wrench_residual:.3g}, "
+                   f"min clearance {design.verification.min_capsule_distance:.3f} m)", err=True)
+        return EXIT_INFEASIBLE
+    return 0
+
+
+def _print_summary(design, task_name: str) -> None:
+    v = design.verification
+    table = Table(title=f"{design.topology.code}: {task_name}", show_header=False)
+    table.add_row("status", f"{design.status} ({'feasible' if design.feasible else 'INFEASIBLE'})")
+    table.add_row("cost", f"{design.cost:.6g} (rad^2/s^2)^2")
+    table.add_row("angles (deg)", np.array2string(np.degrees(design.alpha), precision=2, suppress_small=True))
+    table.add_row("yaw (deg)", f"{np.degrees(design.yaw):.2f}")
+    table.add_row("max |Au - b|", f"{v.max_wrench_residual:.3g}")
+    table.add_row("min clearance", f"{v.min_capsule_distance:.4f} m (need {v.required_distance:.3f})")
+    table.add_row("solver", f"{design.iterations} iterations, {design.wall_s:.2f} s, {len(design.starts)} start(s)")
+    Console().print(table)

@@ -1,0 +1,92 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from groundstation.assembly import kinematics as kin
+from groundstation.assembly.assembly_file import load_assembly, save_assembly
+from groundstation.assembly.module import ModuleParams
+from groundstation.assembly.topology import Topology
+from groundstation.design.optimize import SolverOptions, optimize, verify
+from groundstation.design.task import load_task
+
+ROOT = Path(__file__).resolve().parents[2]
+P = ModuleParams()
+
+
+def toy_wrenches():
+    return load_task(ROOT / "configs/tasks/toy_push_y.toml").wrenches_for(2, P)
+
+
+def scan_symmetric_v(wrenches):
+    """Independent of the solver: minimum-norm cost of the symmetric V family over its tilt, 0.01 deg steps."""
+    best = (np.inf, None)
+    for tilt in np.radians(np.arange(0.0, 60.0, 0.01)):
+        pos, rot = kin.module_frames(Topology.from_code("oS"), np.array([tilt, 0.0, -2 * tilt]), P.l_c)
+        a = kin.allocation_matrix(pos, rot, P)
+        u = wrenches @ np.linalg.pinv(a).T
+        if u.min() < 0 or u.max() > P.u_max or not np.allclose(u @ a.T, wrenches, atol=1e-6):
+            continue
+        cost = float(np.sum(u * u))
+        if cost < best[0]:
+            best = (cost, np.degrees(tilt))
+    return best
+
+
+def test_toy_case_finds_the_symmetric_v():
+    b, w = toy_wrenches()
+    assert np.allclose(b[:, 2], 2 * 0.24 * 9.81) and b[0, 1] == 0.36 and b[1, 1] == -0.36 and b[2, 1] == 0
+    scan_cost, scan_tilt = scan_symmetric_v(b)
+    assert scan_tilt == pytest.approx(22.5, abs=0.1)
+    for code in ("oS", "oE"):  # the same assembly in both headings: the body yaw takes care of it
+        d = optimize(Topology.from_code(code), P, b, w)
+        assert d.feasible and d.status == "Solve_Succeeded"
+        root_tilt = np.degrees(np.max(np.abs(d.alpha[:2])))
+        assert root_tilt == pytest.approx(scan_tilt, abs=0.1)
+        assert abs(np.degrees(d.alpha[2])) == pytest.approx(2 * scan_tilt, abs=0.2)
+        assert d.cost == pytest.approx(scan_cost, rel=1e-4)
+
+
+def test_saved_design_rechecked_from_poses(tmp_path):
+    b, w = toy_wrenches()
+    d = optimize(Topology.from_code("oS"), P, b, w)
+    path = save_assembly(tmp_path / "toy.json", d.record("toy"))
+    _, rec = load_assembly(path)
+    # Recompute wrenches and clearance from the saved rotor list and poses, without package geometry.
+    u = np.array(rec["u"])
+    wrench = np.zeros((len(u), 6))
+    for k, rotor in enumerate(rec["rotors"]):
+        p, z = np.array(rotor["position"]), np.array(rotor["axis"])
+        f = P.c_f * u[:, k, None] * z
+        wrench[:, :3] += f
+        wrench[:, 3:] += np.cross(p, f) + rotor["spin"] * P.c_m * u[:, k, None] * z
+    np.testing.assert_allclose(wrench, rec["wrenches"], atol=1e-6)
+    assert u.min() >= 0 and u.max() <= P.u_max
+    mods = rec["modules"]
+    mu = np.linspace(P.capsule_a, P.capsule_b, 600)
+    axis = [np.array(m["position"]) - mu[:, None] * np.array(m["rotation"])[:, 2] for m in mods]
+    clearance = np.min(np.linalg.norm(axis[0][:, None] - axis[1][None], axis=2))
+    assert clearance >= 2 * P.r - 1e-6
+    assert rec["verification"]["feasible"] and rec["feasible"]
+
+
+def test_infeasible_task_is_a_result():
+    # One module cannot push both ways sideways while hovering.
+    b = np.array([[1.0, 0, 2.4, 0, 0, 0], [-1.0, 0, 2.4, 0, 0, 0]])
+    d = optimize(Topology.single(), P, b, opts=SolverOptions(rim_tilts_deg=(0.0,)))
+    assert not d.feasible
+    assert d.verification.max_wrench_residual > 0.1
+
+
+def test_verify_detects_each_violation():
+    topo = Topology.from_code("oS")
+    alpha = np.radians([22.5, 0, -45])
+    pos, rot = kin.module_frames(topo, alpha, P.l_c)
+    a = kin.allocation_matrix(pos, rot, P)
+    b = np.array([[0, 0, 4.7, 0, 0, 0]])
+    u = b @ np.linalg.pinv(a).T
+    assert verify(topo, P, alpha, 0.0, u, b).feasible
+    assert not verify(topo, P, alpha, 0.0, u * 1.01, b).feasible  # residual
+    assert not verify(topo, P, alpha, 0.0, u - u.max(), b).feasible  # negative inputs
+    bowl_down = np.radians([-30, 0, 60])  # axes converge below: capsules cross
+    assert verify(topo, P, bowl_down, 0.0, u, b).min_capsule_distance < 2 * P.r
