@@ -14,6 +14,7 @@ import click
 from groundstation import __version__
 from groundstation.cli.enumerate_cmd import enumerate_command
 from groundstation.cli.optimize_cmd import optimize_command
+from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import GroundstationError
 
 EXIT_BAD_INPUT = 2
@@ -28,6 +29,7 @@ def cli() -> None:
 
 cli.add_command(enumerate_command)
 cli.add_command(optimize_command)
+cli.add_command(simulate_command)
 
 
 def main(argv: list[str] | None = None) -> None:

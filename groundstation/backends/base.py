@@ -1,0 +1,42 @@
+"""The Backend protocol: what the flight loop needs from modules, simulated or real (commands in, state out).
+
+Implemented by ``sim`` (PyBullet), and later by the Crazyflie and MAVLink backends and an in-package fake.
+Motor commands are rotor inputs ``u = Omega^2`` in rad^2/s^2, in assembly rotor order (module-major, q = 1..4);
+a backend converts them to its wire format at its edge and never sends more than ``u_max``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PreflightReport:
+    ok: bool
+    issues: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class Telemetry:
+    stamp: float
+    """Backend time, s."""
+    link_ok: bool
+    """All modules reachable."""
+    motors: np.ndarray = field(repr=False)
+    """(4n,) rotor inputs last applied, rad^2/s^2."""
+    battery_v: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    """Per-module battery voltage, V (empty when unknown)."""
+
+
+@runtime_checkable
+class Backend(Protocol):
+    def connect(self) -> None: ...
+    def preflight(self) -> PreflightReport: ...
+    def arm(self) -> None: ...
+    def send(self, u: np.ndarray) -> None: ...
+    def telemetry(self) -> Telemetry: ...
+    def emergency_stop(self) -> None: ...
+    def close(self) -> None: ...

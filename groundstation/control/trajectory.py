@@ -1,0 +1,216 @@
+"""Reference trajectories with analytic derivatives (paper §V, §VI).
+
+Every trajectory maps time (s, from its own start) to a :class:`Setpoint`. A :class:`FlightPlan` chains
+take-off, the tracking trajectory and landing so the reference is continuous in position and velocity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from groundstation.control.state import Setpoint
+
+TWO_PI = 2.0 * np.pi
+
+
+def euler_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Rotation ``R_z(yaw) R_y(pitch) R_x(roll)``, radians."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def roll_pitch_yaw(r: np.ndarray) -> tuple[float, float, float]:
+    """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix, radians."""
+    return (float(np.arctan2(r[2, 1], r[2, 2])), float(-np.arcsin(np.clip(r[2, 0], -1.0, 1.0))),
+            float(np.arctan2(r[1, 0], r[0, 0])))
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Fixed attitude target, radians."""
+
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return euler_zyx(self.roll, self.pitch, self.yaw)
+
+
+@dataclass(frozen=True)
+class Hover:
+    """Hold ``point`` (world, m)."""
+
+    point: tuple[float, float, float]
+    duration: float
+    """s"""
+    attitude: Attitude = field(default_factory=Attitude)
+
+    def __call__(self, t: float) -> Setpoint:
+        z = np.zeros(3)
+        return Setpoint(np.array(self.point, float), z, z.copy(), self.attitude.matrix)
+
+
+@dataclass(frozen=True)
+class Ramp:
+    """Smooth move from ``start`` to ``end`` (world, m) with a quintic profile: zero velocity and acceleration at
+    both ends. Take-off and landing are ramps."""
+
+    start: tuple[float, float, float]
+    end: tuple[float, float, float]
+    duration: float
+    """s"""
+    attitude: Attitude = field(default_factory=Attitude)
+
+    def __call__(self, t: float) -> Setpoint:
+        s = np.clip(t / self.duration, 0.0, 1.0)
+        inside = 0.0 < t < self.duration
+        h = 10 * s**3 - 15 * s**4 + 6 * s**5
+        dh = (30 * s**2 - 60 * s**3 + 30 * s**4) / self.duration if inside else 0.0
+        ddh = (60 * s - 180 * s**2 + 120 * s**3) / self.duration**2 if inside else 0.0
+        a, b = np.array(self.start, float), np.array(self.end, float)
+        return Setpoint(a + h * (b - a), dh * (b - a), ddh * (b - a), self.attitude.matrix)
+
+
+@dataclass(frozen=True)
+class Circle:
+    """Horizontal circle of ``radius`` (m) around ``center`` (world, m), one lap per ``period`` (s), starting
+    at ``center + [radius, 0, 0]``."""
+
+    center: tuple[float, float, float]
+    radius: float
+    period: float
+    duration: float
+    attitude: Attitude = field(default_factory=Attitude)
+
+    def __call__(self, t: float) -> Setpoint:
+        w = TWO_PI / self.period
+        c, s = np.cos(w * t), np.sin(w * t)
+        r = self.radius
+        p = np.array(self.center, float) + [r * c, r * s, 0.0]
+        return Setpoint(p, np.array([-r * w * s, r * w * c, 0.0]), np.array([-r * w * w * c, -r * w * w * s, 0.0]),
+                        self.attitude.matrix)
+
+
+@dataclass(frozen=True)
+class Figure8:
+    """The paper's 3D figure-8 (§VI-B):
+    ``p(t) = [l0 sin(wt) cos(wt), l0 sin(wt), h0 - l0/3 sin(wt)] + offset``, ``w = 2 pi / tc``."""
+
+    l0: float
+    """Size, m."""
+    tc: float
+    """Period, s."""
+    h0: float
+    """Mean height, m."""
+    duration: float
+    offset: tuple[float, float] = (0.0, 0.0)
+    """Horizontal offset of the figure, m."""
+    attitude: Attitude = field(default_factory=Attitude)
+
+    def __call__(self, t: float) -> Setpoint:
+        w = TWO_PI / self.tc
+        s, c = np.sin(w * t), np.cos(w * t)
+        s2, c2 = np.sin(2 * w * t), np.cos(2 * w * t)
+        l0 = self.l0
+        p = np.array([self.offset[0] + 0.5 * l0 * s2, self.offset[1] + l0 * s, self.h0 - l0 / 3 * s])
+        v = np.array([l0 * w * c2, l0 * w * c, -l0 / 3 * w * c])
+        a = np.array([-2 * l0 * w * w * s2, -l0 * w * w * s, l0 / 3 * w * w * s])
+        return Setpoint(p, v, a, self.attitude.matrix)
+
+
+def _smoothstep(x: float) -> tuple[float, float, float]:
+    """Quintic smoothstep h(x) on [0, 1], its derivative and its integral from 0."""
+    x = min(max(x, 0.0), 1.0)
+    return 10 * x**3 - 15 * x**4 + 6 * x**5, 30 * x**2 - 60 * x**3 + 30 * x**4, 2.5 * x**4 - 3 * x**5 + x**6
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """Take off level from ``ground`` to the trajectory's start, track it, land level below its end point.
+
+    Transitions are smooth: the tracking trajectory is entered and left through a time warp ``s(t)`` whose rate
+    rises from 0 to 1 (and back) over ``ramp_s`` with a quintic profile, so the reference velocity and
+    acceleration are continuous; the attitude target is blended from level to the trajectory's attitude during
+    the settle phase and back to level during the first half of the landing.
+    """
+
+    ground: tuple[float, float, float]
+    """COM position resting on the ground, world, m."""
+    track: Hover | Circle | Figure8
+    takeoff_s: float = 3.0
+    settle_s: float = 1.5
+    ramp_s: float = 2.0
+    landing_s: float = 3.0
+
+    @cached_property
+    def phases(self) -> tuple[tuple[str, float, float], ...]:
+        """(name, start, end) of each phase, s."""
+        t1 = self.takeoff_s
+        t2 = t1 + self.settle_s
+        t3 = t2 + self.track.duration
+        t4 = t3 + self.settle_s
+        return (("takeoff", 0.0, t1), ("settle", t1, t2), ("track", t2, t3), ("hold", t3, t4),
+                ("landing", t4, t4 + self.landing_s))
+
+    @property
+    def duration(self) -> float:
+        return self.phases[-1][2]
+
+    def _warp(self, t: float) -> tuple[float, float, float]:
+        """Trajectory time s(t), s'(t), s''(t) within the tracking phase."""
+        d, r = self.track.duration, min(self.ramp_s, self.track.duration / 2)
+        if r <= 0:
+            return t, 1.0, 0.0
+        if t < r:
+            h, dh, ih = _smoothstep(t / r)
+            return r * ih, h, dh / r
+        if t > d - r:
+            h, dh, ih = _smoothstep((d - t) / r)
+            return (d - r) - r * ih, h, -dh / r
+        return r / 2 + (t - r), 1.0, 0.0
+
+    def _tracked(self, t: float) -> Setpoint:
+        s, ds, dds = self._warp(t)
+        sp = self.track(s)
+        return Setpoint(sp.position, sp.velocity * ds, sp.acceleration * ds * ds + sp.velocity * dds, sp.rotation)
+
+    def _attitude(self, weight: float) -> np.ndarray:
+        att = self.track.attitude
+        return euler_zyx(weight * att.roll, weight * att.pitch, att.yaw)
+
+    @cached_property
+    def _ends(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return tuple(self._tracked(0.0).position), tuple(self._tracked(self.track.duration).position)
+
+    def __call__(self, t: float) -> Setpoint:
+        (_, _, t1), (_, _, t2), (_, _, t3), (_, _, t4), _ = self.phases
+        start, end = self._ends
+        if t < t1:
+            sp = Ramp(self.ground, start, self.takeoff_s)(t)
+            return Setpoint(sp.position, sp.velocity, sp.acceleration, self._attitude(0.0))
+        if t < t2:
+            blend = _smoothstep((t - t1) / self.settle_s)[0]
+            return Setpoint(np.array(start), np.zeros(3), np.zeros(3), self._attitude(blend))
+        if t < t3:
+            return self._tracked(t - t2)
+        if t < t4:
+            return Setpoint(np.array(end), np.zeros(3), np.zeros(3), self._attitude(1.0))
+        touchdown = (end[0], end[1], self.ground[2] - 0.02)  # aim slightly below ground so contact is firm
+        sp = Ramp(end, touchdown, self.landing_s)(t - t4)
+        level = 1.0 - _smoothstep(2.0 * (t - t4) / self.landing_s)[0]
+        return Setpoint(sp.position, sp.velocity, sp.acceleration, self._attitude(level))
+
+    def phase_at(self, t: float) -> str:
+        for name, a, b in self.phases:
+            if a <= t < b:
+                return name
+        return "done"

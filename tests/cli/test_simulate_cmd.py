@@ -1,0 +1,50 @@
+import json
+from pathlib import Path
+
+import pytest
+from matplotlib.image import imread
+
+from groundstation.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+TOY = str(ROOT / "configs/assemblies/toy_v2.json")
+
+
+def run(capsys, *args):
+    with pytest.raises(SystemExit) as ex:
+        main(list(args))
+    out, err = capsys.readouterr()
+    return ex.value.code, out, err
+
+
+def test_json_metrics_and_plot(capsys, tmp_path):
+    png = tmp_path / "f.png"
+    code, out, err = run(capsys, "simulate", TOY, "--trajectory", "hover", "--duration", "2", "--json",
+                         "--plot", str(png))
+    m = json.loads(out)
+    assert code == 0
+    for key in ("pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg", "realtime_factor", "crashed"):
+        assert key in m
+    assert not m["crashed"] and m["pos_rmse_m"] < 0.01 and m["realtime_factor"] > 1
+    assert imread(png).shape[1] > 800 and f"plot: {png}" in err
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["simulate", "nope.json"], "nope.json: file not found"),
+    (["simulate", TOY, "--trajectory", "spiral"], "unknown trajectory"),
+    (["simulate", TOY, "--duration", "-1"], "--duration must be positive"),
+    (["simulate", TOY, "--height", "9"], "flight volume"),
+    (["simulate", TOY, "--allocation", "magic"], "unknown allocation"),
+])
+def test_bad_input(capsys, args, fragment):
+    code, out, err = run(capsys, *args)
+    assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_invalid_assembly_file(capsys, tmp_path):
+    rec = json.loads(Path(TOY).read_text())
+    rec["modules"][0]["position"] = [1, 2, 3]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(rec))
+    code, out, err = run(capsys, "simulate", str(bad))
+    assert code == 2 and "modules[0].position" in err

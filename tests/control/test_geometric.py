@@ -1,0 +1,59 @@
+import numpy as np
+import pytest
+
+from groundstation.assembly.assembly import Assembly
+from groundstation.assembly.module import ModuleParams
+from groundstation.assembly.topology import Topology
+from groundstation.control.geometric import Gains, adapt_attitude, control
+from groundstation.control.model import ControlModel
+from groundstation.control.state import RigidState, Setpoint
+from groundstation.control.trajectory import euler_zyx, roll_pitch_yaw
+
+P = ModuleParams()
+V = Assembly(Topology.from_code("oS"), P, np.radians([22.5, 0, -45]))  # hinge about x: no force along body x
+FLAT = Assembly(Topology.from_code("oE"), P, np.zeros(3))
+FULL = Assembly(Topology.from_code("oES"), P, np.radians([0, 10, -30, 40]))
+
+
+def test_actuation_classes():
+    assert ControlModel.from_assembly(V).actuation == "force-deficient-1"
+    np.testing.assert_allclose(np.abs(ControlModel.from_assembly(V).null_force[0]), [1, 0, 0], atol=1e-9)
+    assert ControlModel.from_assembly(FLAT).actuation == "force-deficient-2"
+    assert ControlModel.from_assembly(FULL).actuation == "full"
+
+
+@pytest.mark.parametrize("asm", [V, FULL, FLAT], ids=["V", "full", "flat"])
+def test_hover_equilibrium_wrench(asm):
+    model = ControlModel.from_assembly(asm)
+    sp = Setpoint(np.array([0, 0, 1.0]), np.zeros(3), np.zeros(3), np.eye(3))
+    out = control(RigidState(position=np.array([0, 0, 1.0])), sp, model, Gains())
+    np.testing.assert_allclose(out.wrench, [0, 0, asm.mass * 9.81, 0, 0, 0], atol=1e-9)
+
+
+@pytest.mark.parametrize("roll_deg", [0.0, -5.0])
+def test_v_adaptation_holds_roll_and_makes_force_producible(roll_deg):
+    model = ControlModel.from_assembly(V)
+    target = euler_zyx(np.radians(roll_deg), 0.0, 0.3)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        f = np.array([*rng.uniform(-2, 2, 2), rng.uniform(3, 7)])
+        rd = adapt_attitude(target, f, model)
+        roll, _pitch, yaw = roll_pitch_yaw(rd)
+        assert roll == pytest.approx(np.radians(roll_deg)) and yaw == pytest.approx(0.3)
+        assert abs((rd @ model.null_force[0]) @ f) < 1e-9  # no force needed along the missing direction
+
+
+def test_flat_adaptation_aligns_thrust_with_force():
+    model = ControlModel.from_assembly(FLAT)
+    f = np.array([1.0, -0.5, 5.0])
+    rd = adapt_attitude(euler_zyx(0, 0, 0.4), f, model)
+    np.testing.assert_allclose(rd[:, 2], f / np.linalg.norm(f), atol=1e-12)
+    assert roll_pitch_yaw(rd)[2] == pytest.approx(0.4, abs=0.1)
+
+
+def test_attitude_error_sign_restores():
+    model = ControlModel.from_assembly(FULL)
+    tilted = RigidState(position=np.array([0, 0, 1.0]), rotation=euler_zyx(0.1, 0, 0))
+    sp = Setpoint(np.array([0, 0, 1.0]), np.zeros(3), np.zeros(3), np.eye(3))
+    out = control(tilted, sp, model, Gains())
+    assert out.wrench[3] < 0 and out.attitude_error[0] > 0  # positive roll error -> negative roll torque
