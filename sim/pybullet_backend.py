@@ -25,9 +25,6 @@ from groundstation.backends.base import PreflightReport, Telemetry
 from groundstation.control.state import RigidState
 from groundstation.design.task import GRAVITY
 
-MODULE_HALF_EXTENTS = (0.085, 0.085, 0.02)
-"""Collision box of one module, m (frame and rotors of a 0.17 m quadrotor)."""
-
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -73,7 +70,7 @@ def _matrix_to_quat(r: np.ndarray) -> tuple[float, float, float, float]:
 
 def resting_height(assembly: Assembly) -> float:
     """COM height at which the lowest module corner touches the ground (body frame level), m."""
-    hx, hy, hz = MODULE_HALF_EXTENTS
+    hx, hy, hz = assembly.params.frame_half_extents
     corners = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     lowest = min(float(np.min((p + corners @ r.T)[:, 2]))
                  for p, r in zip(assembly.module_positions, assembly.module_rotations, strict=True))
@@ -117,12 +114,12 @@ class PyBulletBackend:
         a = self.assembly
         n = a.n
         quats = [_matrix_to_quat(r) for r in a.module_rotations]
-        col = pb.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=[MODULE_HALF_EXTENTS] * n,
+        col = pb.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=[a.params.frame_half_extents] * n,
                                            collisionFramePositions=a.module_positions.tolist(),
                                            collisionFrameOrientations=quats, physicsClientId=c)
         vis = -1
         if self.config.gui:
-            vis = pb.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=[MODULE_HALF_EXTENTS] * n,
+            vis = pb.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=[a.params.frame_half_extents] * n,
                                             visualFramePositions=a.module_positions.tolist(),
                                             visualFrameOrientations=quats, physicsClientId=c)
         # Principal axes of the inertia tensor: Bullet wants a diagonal inertia in a rotated inertial frame.

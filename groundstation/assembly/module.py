@@ -44,12 +44,18 @@ class ModuleParams:
     """Principal moments of inertia of one module about its centre, module frame, kg m^2. Not in the paper:
     estimated as a 0.17 m square plate of mass ``m``; identify it on the real module before flight."""
 
+    frame_half_extents: tuple[float, float, float] = (0.085, 0.085, 0.02)
+    """Half sizes of the box that bounds one module's frame and rotors (x, y, z, module frame), m: used for
+    ground contact in simulation and for drawings."""
+
     @model_validator(mode="after")
     def _capsule_ordered(self) -> ModuleParams:
         if self.capsule_b <= self.capsule_a:
             raise ValueError("capsule_b must be greater than capsule_a")
         if min(self.inertia) <= 0:
             raise ValueError("inertia must be positive")
+        if min(self.frame_half_extents) <= 0:
+            raise ValueError("frame_half_extents must be positive")
         return self
 
     @property

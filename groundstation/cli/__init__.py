@@ -12,6 +12,7 @@ import sys
 import click
 
 from groundstation import __version__
+from groundstation.cli.design_cmd import design_command
 from groundstation.cli.enumerate_cmd import enumerate_command
 from groundstation.cli.optimize_cmd import optimize_command
 from groundstation.cli.simulate_cmd import simulate_command
@@ -29,6 +30,7 @@ def cli() -> None:
 
 cli.add_command(enumerate_command)
 cli.add_command(optimize_command)
+cli.add_command(design_command)
 cli.add_command(simulate_command)
 
 

@@ -25,7 +25,7 @@ EXIT_INFEASIBLE = 1
 @click.option("--topology", "code", required=True, help="Topology code, e.g. oE or oS(W)E (see 'enumerate --out').")
 @click.option("--modules", "modules", default=None, type=click.Path(dir_okay=False),
               help="Module parameter file (default: the paper's Table II).")
-@click.option("--starts", "starts", default="10,20,5", show_default=True,
+@click.option("--starts", "starts", default="10,30,20,5", show_default=True,
               help="Multi-start: tilt of the outermost module of each starting bowl, degrees (0 = flat start).")
 @click.option("--fixed-yaw", is_flag=True, help="Do not optimize the body yaw (the paper's formulation).")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the assembly file.")

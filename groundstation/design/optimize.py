@@ -41,7 +41,7 @@ from groundstation.design.task import GRAVITY
 class SolverOptions:
     """Knobs of :func:`optimize`."""
 
-    rim_tilts_deg: tuple[float, ...] = (10.0, 20.0, 5.0)
+    rim_tilts_deg: tuple[float, ...] = (10.0, 30.0, 20.0, 5.0)
     """Starts of the multi-start, tried in order: tilt of the outermost module of the starting bowl, degrees.
     The fold per connection is this tilt divided by the lattice radius of the assembly (at least 1/2), so a
     90-module assembly starts as shallow a bowl as a two-module V; a fixed fold compounds with distance and
@@ -384,7 +384,15 @@ def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights
         ends = problem.endpoints(alpha, yaw)
         pairs = _close_pairs(ends, topo.n, threshold)
         iters, status = 0, "not solved"
-        for _ in range(opts.max_rounds):
+        # unknowns: angles, yaw, inputs, lifted frames (R, p per module) and the centroid
+        n_var = (topo.n + 1) + int(opts.free_yaw) + 4 * topo.n * len(wrenches) + 12 * topo.n + 3
+        if problem.g_eq.shape[0] > n_var:
+            # More equalities than unknowns (one module, several distinct wrenches): Ipopt refuses such
+            # problems; the least-squares start is verified instead and is reported infeasible unless it fits.
+            pairs, status, rounds = set(), "Not_Enough_Degrees_Of_Freedom", 0
+        else:
+            rounds = opts.max_rounds
+        for _ in range(rounds):
             ordered = sorted(pairs)
             alpha, yaw, v, status, it = problem.solve(alpha, yaw, v, ordered, _planes(ends, ordered, params.r))
             iters += it

@@ -1,0 +1,125 @@
+"""``groundstation design``: pick the best configuration for a task (paper §IV-C, Algorithm 2)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from groundstation.assembly.assembly_file import load_assembly, save_assembly
+from groundstation.assembly.module import ModuleParams, load_module_params
+from groundstation.cli.common import progress_bar, stderr_console, writable_output
+from groundstation.design.candidates import read_candidates
+from groundstation.design.enumeration import SamplingPolicy
+from groundstation.design.optimize import SolverOptions
+from groundstation.design.selection import results_table, select
+from groundstation.design.task import load_task
+from groundstation.errors import UsageError
+
+EXIT_INFEASIBLE = 1
+
+
+@click.command("design")
+@click.argument("tasks", type=click.Path(dir_okay=False))
+@click.option("--max-modules", type=int, default=6, show_default=True, help="Give up after this many modules.")
+@click.option("--min-modules", type=int, default=1, show_default=True,
+              help="Start at this many modules (e.g. 4 and --max-modules 4 to compare all n = 4 candidates).")
+@click.option("--modules", "modules", default=None, type=click.Path(dir_okay=False),
+              help="Module parameter file (default: the paper's Table II).")
+@click.option("--candidates", default=None, type=click.Path(dir_okay=False),
+              help="Candidates file from 'enumerate --out' (default: enumerate here).")
+@click.option("--sample", type=int, default=None, metavar="N_n", help="Sample N_n candidates per level.")
+@click.option("--sigma", type=float, default=1.0, show_default=True)
+@click.option("--scheme", default="compact", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--no-modification", is_flag=True, help="Do not add n m g and the hover wrench to the task.")
+@click.option("--workers", type=int, default=1, show_default=True, help="Local worker processes.")
+@click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", help="Dask distributed scheduler.")
+@click.option("--results", default=None, metavar="FILE.jsonl",
+              help="Results of every candidate, appended as they finish; rerun with it to resume.")
+@click.option("--table", default=None, metavar="FILE.csv|FILE.json", help="Write the results table.")
+@click.option("--figures", default=None, metavar="DIR", help="Write Fig. 1, 5 and 6 style figures here.")
+@click.option("--out", default=None, metavar="FILE.json", help="Write the best design as an assembly file.")
+@click.option("--json", "as_json", is_flag=True, help="Print the best design as one JSON object.")
+def design_command(tasks: str, max_modules: int, min_modules: int, modules: str | None, candidates: str | None, sample: int | None,
+                   sigma: float, scheme: str, seed: int, no_modification: bool, workers: int, scheduler: str | None,
+                   results: str | None, table: str | None, figures: str | None, out: str | None,
+                   as_json: bool) -> int:
+    """Find the least-cost feasible configuration with the fewest modules for a task's wrench set."""
+    if not 1 <= min_modules <= max_modules:
+        raise UsageError(f"need 1 <= --min-modules <= --max-modules, got {min_modules} and {max_modules}")
+    if workers < 1:
+        raise UsageError(f"--workers must be at least 1, got {workers}")
+    out_path = writable_output(out, (".json",)) if out else None
+    table_path = writable_output(table, (".csv", ".json")) if table else None
+    results_path = writable_output(results, (".jsonl",)) if results else None
+    fig_dir = Path(figures) if figures else None
+    if fig_dir is not None:
+        fig_dir.mkdir(parents=True, exist_ok=True)
+        writable_output(fig_dir / "fig1_assembly.png")
+    params = load_module_params(modules) if modules else ModuleParams()
+    task = load_task(tasks)
+    if no_modification:
+        object.__setattr__(task, "add_gravity", False)
+        object.__setattr__(task, "add_hover", False)
+    sampling = SamplingPolicy(sample, sigma, scheme, seed) if sample is not None else None
+    cand = None
+    if candidates:
+        cset = read_candidates(candidates)
+        cand = {n: [t.code for t in tops] for n, tops in cset.levels.items()}
+
+    console = stderr_console()
+    with progress_bar(console) as progress:
+        bar = {"task": None}
+
+        def on_level(n: int, count: int) -> None:
+            bar["task"] = progress.add_task(f"n = {n}: solving candidates", total=count)
+
+        def on_result(_row) -> None:
+            progress.advance(bar["task"])
+
+        sel = select(task, params, max_modules, sampling=sampling, candidates=cand, opts=SolverOptions(),
+                     workers=workers, scheduler=scheduler, results_path=results_path, on_level=on_level,
+                     on_result=on_result, min_modules=min_modules)
+    rows = results_table(sel.results)
+    if table_path is not None:
+        if table_path.suffix == ".json":
+            table_path.write_text(json.dumps(rows, indent=1) + "\n")
+        else:
+            with table_path.open("w", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["n"])
+                writer.writeheader()
+                writer.writerows(rows)
+    if sel.best is None:
+        click.echo(f"groundstation: no feasible design with up to {max_modules} modules "
+                   f"({len(rows)} candidates solved)", err=True)
+        return EXIT_INFEASIBLE
+    if out_path is not None:
+        save_assembly(out_path, sel.best)
+    if fig_dir is not None:
+        from groundstation.design.figures import plot_assembly, plot_costs, plot_polytope
+
+        save_assembly(fig_dir / "best.json", sel.best)
+        assembly, rec = load_assembly(fig_dir / "best.json")
+        plot_assembly(assembly, fig_dir / "fig1_assembly.png")
+        plot_costs(rows, sel.n, fig_dir / "fig5_costs.png")
+        plot_polytope(assembly, np.array(rec["wrenches"])[:, :3], fig_dir / "fig6_polytope.png")
+    if as_json:
+        click.echo(json.dumps(sel.best))
+    else:
+        t = Table(title=f"{task.name}: best of {sum(r['n'] == sel.n for r in rows)} candidates with n = {sel.n}")
+        for col in ("code", "cost", "iterations", "wall s", "min clearance m"):
+            t.add_column(col, justify="right")
+        for r in [r for r in rows if r["n"] == sel.n and r["feasible"]][:10]:
+            t.add_row(r["code"], f"{r['cost']:.5g}", str(r["iterations"]), f"{r['wall_s']:.2f}",
+                      f"{r['min_clearance_m']:.3f}")
+        Console().print(t)
+    for label, path in (("assembly", out_path), ("table", table_path), ("figures", fig_dir)):
+        if path is not None:
+            click.echo(f"{label}: {path}", err=True)
+    return 0
