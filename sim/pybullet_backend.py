@@ -24,6 +24,7 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.backends.base import PreflightReport, Telemetry
 from groundstation.control.state import RigidState
 from groundstation.design.task import GRAVITY
+from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 
 
 @dataclass(frozen=True)
@@ -38,34 +39,13 @@ class SimConfig:
     """Std of measured attitude noise (rotation vector), rad."""
     latency: float = 0.0
     """Delay of the measured state, s."""
+    gyro_noise: float = 0.005
+    """Std of the gyro rate in the telemetry, rad/s."""
     realtime: bool = False
     """Pace the simulation to the wall clock."""
     gui: bool = False
     """Open PyBullet's GUI (needs a display)."""
     seed: int = 0
-
-
-def _quat_to_matrix(q) -> np.ndarray:
-    return np.array(pb.getMatrixFromQuaternion(q)).reshape(3, 3)
-
-
-def _matrix_to_quat(r: np.ndarray) -> tuple[float, float, float, float]:
-    """Quaternion [x, y, z, w] of a rotation matrix (Shepperd's method, robust for all angles)."""
-    t = np.trace(r)
-    if t > 0:
-        s = 2.0 * np.sqrt(t + 1.0)
-        w, x, y, z = 0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s
-    else:
-        i = int(np.argmax(np.diag(r)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + r[i, i] - r[j, j] - r[k, k])
-        q = np.zeros(4)
-        q[i] = 0.25 * s
-        q[j] = (r[j, i] + r[i, j]) / s
-        q[k] = (r[k, i] + r[i, k]) / s
-        q[3] = (r[k, j] - r[j, k]) / s
-        x, y, z, w = q
-    return (float(x), float(y), float(z), float(w))
 
 
 def resting_height(assembly: Assembly) -> float:
@@ -81,7 +61,7 @@ class PyBulletBackend:
     """Physics simulation of one assembly behind the Backend protocol."""
 
     def __init__(self, assembly: Assembly, config: SimConfig | None = None,
-                 start_position: tuple[float, float, float] | None = None) -> None:
+                 start_position: tuple[float, float, float] | None = None, observers=()) -> None:
         self.assembly = assembly
         self.config = config or SimConfig()
         self._rng = np.random.default_rng(self.config.seed)
@@ -100,6 +80,10 @@ class PyBulletBackend:
         self._wall0 = 0.0
         self._r_if = np.eye(3)
         self._state = RigidState()
+        self.observers = list(observers)
+        """Callables ``(t, true_state)`` run after every physics step (e.g. a virtual mocap)."""
+        self.link_ok = True
+        """Set False to inject a link loss (the flight must stop the motors)."""
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -113,7 +97,7 @@ class PyBulletBackend:
         pb.createMultiBody(0, plane, physicsClientId=c)
         a = self.assembly
         n = a.n
-        quats = [_matrix_to_quat(r) for r in a.module_rotations]
+        quats = [matrix_to_quat(r) for r in a.module_rotations]
         col = pb.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=[a.params.frame_half_extents] * n,
                                            collisionFramePositions=a.module_positions.tolist(),
                                            collisionFrameOrientations=quats, physicsClientId=c)
@@ -129,7 +113,7 @@ class PyBulletBackend:
         self._r_if = vecs
         self._body = pb.createMultiBody(a.mass, col, vis, basePosition=self.start_position.tolist(),
                                         baseOrientation=[0, 0, 0, 1], baseInertialFramePosition=[0, 0, 0],
-                                        baseInertialFrameOrientation=_matrix_to_quat(vecs), physicsClientId=c)
+                                        baseInertialFrameOrientation=matrix_to_quat(vecs), physicsClientId=c)
         pb.changeDynamics(self._body, -1, localInertiaDiagonal=lam.tolist(), linearDamping=0.0,
                           angularDamping=0.0, physicsClientId=c)
         self._t = 0.0
@@ -158,7 +142,9 @@ class PyBulletBackend:
         self._u_cmd = np.clip(np.where(np.isfinite(u), u, 0.0), 0.0, self.assembly.params.u_max)
 
     def telemetry(self) -> Telemetry:
-        return Telemetry(stamp=self._t, link_ok=self._client is not None, motors=self._u.copy())
+        gyro = self._state.omega + self._rng.normal(0.0, self.config.gyro_noise, 3)
+        return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
+                         gyro=gyro)
 
     def emergency_stop(self) -> None:
         self._armed = False
@@ -198,6 +184,8 @@ class PyBulletBackend:
             pb.stepSimulation(physicsClientId=c)
             self._t += self._dt
             self._record()
+            for observe in self.observers:
+                observe(self._t, self._state)
             if self.config.realtime:
                 lag = self._t - (time.perf_counter() - self._wall0)
                 if lag > 0:
@@ -211,7 +199,7 @@ class PyBulletBackend:
         c = self._client
         pos, q = pb.getBasePositionAndOrientation(self._body, physicsClientId=c)
         vel, omega_w = pb.getBaseVelocity(self._body, physicsClientId=c)
-        r = _quat_to_matrix(q) @ self._r_if.T
+        r = quat_to_matrix(q) @ self._r_if.T
         return RigidState(np.array(pos), np.array(vel), r, r.T @ np.array(omega_w))
 
     def measured_state(self) -> RigidState:
@@ -223,7 +211,7 @@ class PyBulletBackend:
         cfg = self.config
         if cfg.position_noise == 0 and cfg.attitude_noise == 0:
             return s
-        dr = _rotvec_to_matrix(self._rng.normal(0, cfg.attitude_noise, 3))
+        dr = rotvec_to_matrix(self._rng.normal(0, cfg.attitude_noise, 3))
         return RigidState(s.position + self._rng.normal(0, cfg.position_noise, 3), s.velocity, s.rotation @ dr,
                           s.omega)
 
@@ -234,11 +222,3 @@ class PyBulletBackend:
         while self._history and self._history[0][0] < self._t - horizon - 1e-12:
             self._history.popleft()
 
-
-def _rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
-    th = np.linalg.norm(v)
-    if th < 1e-12:
-        return np.eye(3)
-    k = v / th
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(th) * kx + (1 - np.cos(th)) * kx @ kx

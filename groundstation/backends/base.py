@@ -29,6 +29,9 @@ class Telemetry:
     """(4n,) rotor inputs last applied, rad^2/s^2."""
     battery_v: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Per-module battery voltage, V (empty when unknown)."""
+    gyro: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    """Body angular rate from the modules' IMUs, rad/s, body frame (empty when not streamed). Mocap gives the
+    pose; differentiating it for the rate is too late and too noisy for the attitude loop."""
 
 
 @runtime_checkable

@@ -46,10 +46,10 @@ EXIT_INFEASIBLE = 1
 @click.option("--figures", default=None, metavar="DIR", help="Write Fig. 1, 5 and 6 style figures here.")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the best design as an assembly file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the best design as one JSON object.")
-def design_command(tasks: str, max_modules: int, min_modules: int, modules: str | None, candidates: str | None, sample: int | None,
-                   sigma: float, scheme: str, seed: int, no_modification: bool, workers: int, scheduler: str | None,
-                   results: str | None, table: str | None, figures: str | None, out: str | None,
-                   as_json: bool) -> int:
+def design_command(tasks: str, max_modules: int, min_modules: int, modules: str | None, candidates: str | None,
+                   sample: int | None, sigma: float, scheme: str, seed: int, no_modification: bool, workers: int,
+                   scheduler: str | None, results: str | None, table: str | None, figures: str | None,
+                   out: str | None, as_json: bool) -> int:
     """Find the least-cost feasible configuration with the fewest modules for a task's wrench set."""
     if not 1 <= min_modules <= max_modules:
         raise UsageError(f"need 1 <= --min-modules <= --max-modules, got {min_modules} and {max_modules}")

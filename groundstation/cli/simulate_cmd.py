@@ -12,22 +12,11 @@ from rich.table import Table
 from groundstation.assembly.assembly_file import load_assembly
 from groundstation.cli.common import writable_output
 from groundstation.control.geometric import Gains
-from groundstation.control.trajectory import Attitude, Circle, Figure8, FlightPlan, Hover
+from groundstation.control.trajectory import FlightPlan, make_track
 from groundstation.errors import UsageError
 from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
 
 EXIT_CRASHED = 1
-
-
-def make_track(kind: str, duration: float, height: float, size: float, period: float, roll_deg: float):
-    att = Attitude(roll=np.radians(roll_deg))
-    if kind == "hover":
-        return Hover((0.0, 0.0, height), duration, att)
-    if kind == "circle":
-        return Circle((-size, 0.0, height), size, period, duration, att)
-    if kind == "figure8":
-        return Figure8(size, period, height, duration, attitude=att)
-    raise UsageError(f"unknown trajectory {kind!r}; choose hover, circle or figure8")
 
 
 @click.command("simulate")

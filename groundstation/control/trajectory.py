@@ -214,3 +214,18 @@ class FlightPlan:
             if a <= t < b:
                 return name
         return "done"
+
+
+def make_track(kind: str, duration: float, height: float, size: float, period: float, roll_deg: float):
+    """The tracking trajectory named by ``kind`` (``hover``, ``circle``, ``figure8``) from flight parameters:
+    ``size`` is the figure-8's l0 or the circle's radius (m), ``period`` its t_c or lap time (s)."""
+    from groundstation.errors import UsageError
+
+    att = Attitude(roll=np.radians(roll_deg))
+    if kind == "hover":
+        return Hover((0.0, 0.0, height), duration, att)
+    if kind == "circle":
+        return Circle((-size, 0.0, height), size, period, duration, att)
+    if kind == "figure8":
+        return Figure8(size, period, height, duration, attitude=att)
+    raise UsageError(f"unknown trajectory {kind!r}; choose hover, circle or figure8")

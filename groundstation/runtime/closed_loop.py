@@ -1,7 +1,7 @@
 """Closed-loop flight of an assembly against a simulated backend, in lockstep (paper §VI).
 
-Each control period: read the measured state, sample the flight plan, run the geometric controller and the
-allocation, send the rotor inputs, advance physics to the next period. Everything that happened is recorded in a
+Pre-flight checks (hover feasibility from the allocation, the reference inside the flight volume), then the same
+:class:`~groundstation.runtime.flight.Flight` that ``fly`` runs, on the simulator's clock. The result is a
 :class:`FlightRecord` for metrics and plots.
 """
 
@@ -14,12 +14,15 @@ from typing import Literal
 import numpy as np
 
 from groundstation.assembly.assembly import Assembly
-from groundstation.control.allocation import allocate, allocate_bounded
-from groundstation.control.geometric import Gains, adapt_attitude, control
+from groundstation.control.allocation import allocate_bounded
+from groundstation.control.geometric import Gains, adapt_attitude
 from groundstation.control.model import ControlModel
-from groundstation.control.trajectory import FlightPlan, roll_pitch_yaw
+from groundstation.control.trajectory import FlightPlan
 from groundstation.design.task import GRAVITY
 from groundstation.errors import GroundstationError
+from groundstation.rotations import rotation_angle
+from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
+from groundstation.runtime.loop import LoopStats, SimClock
 
 AllocationMode = Literal["clip", "bounded"]
 
@@ -80,63 +83,36 @@ def volume_check(plan: FlightPlan, volume: FlightVolume) -> None:
 
 def fly_simulated(assembly: Assembly, plan: FlightPlan, backend, gains: Gains | None = None,
                   control_hz: float = 250.0, allocation: AllocationMode = "clip",
-                  volume: FlightVolume | None = None) -> FlightRecord:
-    """Fly ``plan`` on a connected simulated ``backend`` (with ``advance_to`` and ``measured_state``)."""
-    gains = gains or Gains()
+                  volume: FlightVolume | None = None, policy: FailsafePolicy | None = None,
+                  log=None) -> FlightRecord:
+    """Fly ``plan`` in lockstep on a connected simulated ``backend``: the flight loop of ``fly`` with the
+    simulator's clock and its physics state as the pose source."""
     model = ControlModel.from_assembly(assembly)
     hover_check(model, plan)
     volume_check(plan, volume or FlightVolume())
     report = backend.preflight()
     if not report.ok:
         raise PreflightError("backend preflight failed: " + "; ".join(report.issues))
-    alloc = allocate if allocation == "clip" else allocate_bounded
-    dt = 1.0 / control_hz
-    steps = int(np.ceil(plan.duration / dt))
-    n_rot = 4 * assembly.n
-    rec = {k: [] for k in ("t", "p", "r", "pref", "rd", "roll", "u", "phase")}
-    crashed, reason = False, ""
-    backend.arm()
+    flight = Flight(assembly, plan, backend, PhysicsPoseSource(backend), gains=gains, allocation=allocation,
+                    policy=policy, log=log, truth=backend.true_state)
     wall0 = time.perf_counter()
-    for k in range(steps):
-        t = k * dt
-        state = backend.measured_state()
-        sp = plan(t)
-        out = control(state, sp, model, gains)
-        u = alloc(out.wrench, model)
-        if not np.all(np.isfinite(u)):
-            backend.emergency_stop()
-            crashed, reason = True, f"non-finite command at t = {t:.3f} s"
-            break
-        backend.send(u)
-        truth = backend.true_state()
-        phase = plan.phase_at(t)
-        rec["t"].append(t)
-        rec["p"].append(truth.position)
-        rec["r"].append(truth.rotation)
-        rec["pref"].append(sp.position)
-        rec["rd"].append(out.rotation_desired)
-        rec["roll"].append(roll_pitch_yaw(sp.rotation)[0])
-        rec["u"].append(u)
-        rec["phase"].append(phase)
-        if np.linalg.norm(truth.position - sp.position) > 1.0 or truth.rotation[2, 2] < np.cos(np.radians(80)):
-            backend.emergency_stop()
-            crashed, reason = True, f"lost control at t = {t:.2f} s ({phase})"
-            break
-        backend.advance_to(t + dt)
-    wall = time.perf_counter() - wall0
-    backend.emergency_stop()
-    arr = {k: np.array(v) if v else np.zeros((0,)) for k, v in rec.items()}
-    record = FlightRecord(arr["t"], arr["p"].reshape(-1, 3), arr["r"].reshape(-1, 3, 3), arr["pref"].reshape(-1, 3),
-                          arr["rd"].reshape(-1, 3, 3), arr["roll"], arr["u"].reshape(-1, n_rot), arr["phase"], wall,
-                          crashed, reason)
-    object.__setattr__(record, "metrics", flight_metrics(record, plan.duration, assembly.params.u_max))
+    stats = flight.run(SimClock(backend), control_hz)
+    return record_of(flight, time.perf_counter() - wall0, plan.duration, stats)
+
+
+def record_of(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> FlightRecord:
+    """Arrays of a finished flight, with its metrics."""
+    r = flight.rec
+    n_rot = 4 * flight.assembly.n
+    record = FlightRecord(np.array(r.t), np.array(r.position).reshape(-1, 3), np.array(r.rotation).reshape(-1, 3, 3),
+                          np.array(r.position_ref).reshape(-1, 3), np.array(r.rotation_desired).reshape(-1, 3, 3),
+                          np.array(r.roll_target), np.array(r.motors).reshape(-1, n_rot), np.array(r.phase), wall_s,
+                          flight.phase == "emergency", flight.reason if flight.phase == "emergency" else "")
+    metrics = flight_metrics(record, planned_s, flight.assembly.params.u_max)
+    if stats is not None:
+        metrics["loop"] = stats.summary()
+    object.__setattr__(record, "metrics", metrics)
     return record
-
-
-def rotation_angle(ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
-    """Angle between rotations (batched), rad."""
-    tr = np.einsum("...ij,...ij->...", ra, rb)
-    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
 
 
 def flight_metrics(rec: FlightRecord, planned_s: float, u_max: float) -> dict:

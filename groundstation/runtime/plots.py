@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from groundstation.runtime.closed_loop import FlightRecord, rotation_angle
+from groundstation.rotations import rotation_angle
+from groundstation.runtime.closed_loop import FlightRecord
 
 
 def plot_flight(rec: FlightRecord, path: str | Path, title: str, u_max: float) -> Path:

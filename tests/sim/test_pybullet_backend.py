@@ -5,20 +5,12 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.backends.base import Backend
+from groundstation.rotations import rotvec_to_matrix
 from sim.pybullet_backend import PyBulletBackend, SimConfig, resting_height
 
 P = ModuleParams()
 # Tilted L-shape: full inertia tensor with off-diagonal terms, fully actuated.
 FULL = Assembly(Topology.from_code("oES"), P, np.radians([0, 10, -30, 40]))
-
-
-def _expm_so3(w: np.ndarray) -> np.ndarray:
-    th = np.linalg.norm(w)
-    if th < 1e-15:
-        return np.eye(3)
-    k = w / th
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(th) * kx + (1 - np.cos(th)) * kx @ kx
 
 
 def reference_flight(asm: Assembly, u_of_t, p0, duration, dt=2e-4):
@@ -43,7 +35,7 @@ def reference_flight(asm: Assembly, u_of_t, p0, duration, dt=2e-4):
         acc = (r @ wrench[:3]) / m - np.array([0, 0, 9.81])
         p = p + v * dt + 0.5 * acc * dt * dt
         v = v + acc * dt
-        r = r @ _expm_so3(0.5 * (w + w_next) * dt)
+        r = r @ rotvec_to_matrix(0.5 * (w + w_next) * dt)
         w = w_next
         out.append((t + dt, p.copy(), r.copy()))
     return out
@@ -124,3 +116,17 @@ def test_latency_and_noise():
         fall_delayed = 0.5 * 9.81 * 0.45**2
         assert meas.position[2] == pytest.approx(5.0 - fall_delayed, abs=0.05)
         assert truth.position[2] < meas.position[2]
+
+
+def test_realtime_mode_paces_to_the_wall_clock():
+    import time
+
+    with PyBulletBackend(FULL, SimConfig(realtime=True), start_position=(0, 0, 3.0)) as be:
+        t0 = time.perf_counter()
+        be.advance_to(0.5)
+        wall = time.perf_counter() - t0
+    with PyBulletBackend(FULL, start_position=(0, 0, 3.0)) as be:
+        t0 = time.perf_counter()
+        be.advance_to(0.5)
+        lockstep = time.perf_counter() - t0
+    assert 0.45 <= wall <= 1.0 and lockstep < 0.5 * wall

@@ -1,0 +1,94 @@
+"""``groundstation fly`` and ``groundstation log recover``."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import click
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from groundstation.cli.common import stderr_console, writable_output
+from groundstation.flightlog.mcap_log import recover
+from groundstation.runtime.flight import Requests
+
+EXIT_EMERGENCY = 1
+
+
+@click.command("fly")
+@click.argument("flight", type=click.Path(dir_okay=False))
+@click.option("--duration", type=float, default=None, help="Override the tracking time, s.")
+@click.option("--log", "log", default=None, metavar="FILE.mcap", help="Log here instead of the config's log_dir.")
+@click.option("--json", "as_json", is_flag=True, help="Print the flight's metrics as one JSON object.")
+def fly_command(flight: str, duration: float | None, log: str | None, as_json: bool) -> int:
+    """Fly a flight config: connect, preflight, arm, take off, track, land. Ctrl-C lands, twice stops motors."""
+    from groundstation.runtime.fly import fly
+
+    log_path = writable_output(log, (".mcap",)) if log else None
+    console = stderr_console()
+    requests = Requests()
+    live = Live(console=console, auto_refresh=True, refresh_per_second=5, transient=True) \
+        if console.is_terminal else None
+    last = [0.0]
+
+    def on_status(t, phase, age, worst):
+        now = time.monotonic()
+        if live is not None and now - last[0] > 0.2:
+            last[0] = now
+            live.update(f"[bold]{phase}[/] t={t:6.1f} s  mocap age {age * 1e3:5.1f} ms  worst motor {worst:4.0%}"
+                        "   (Ctrl-C: land, twice: stop motors)")
+
+    if live is not None:
+        live.start()
+    try:
+        result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
+                     handle_signals=True)
+    finally:
+        if live is not None:
+            live.stop()
+    m = result.metrics
+    summary = {"phase": result.phase, "reason": result.reason, "log": str(result.log_path), **m}
+    if as_json:
+        click.echo(json.dumps(summary))
+    else:
+        table = Table(title=f"Flight {flight}", show_header=False)
+        for k in ("phase", "reason", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
+                  "max_roll_error_deg", "max_motor_fraction"):
+            v = summary.get(k)
+            table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+        loop = m.get("loop", {})
+        table.add_row("loop", f"{loop.get('rate_hz', 0):.0f} Hz, p99 start error "
+                              f"{loop.get('start_error_ms_p99', 0):.3f} ms, {loop.get('overruns', 0)} overruns")
+        Console().print(table)
+    click.echo(f"log: {result.log_path}", err=True)
+    if result.phase != "done":
+        click.echo(f"groundstation: the flight ended in {result.phase}: {result.reason}", err=True)
+        return EXIT_EMERGENCY
+    return 0
+
+
+@click.group("log")
+def log_group() -> None:
+    """Flight log tools."""
+
+
+@log_group.command("recover")
+@click.argument("src", type=click.Path(dir_okay=False, exists=False))
+@click.argument("dst", type=click.Path(dir_okay=False))
+def recover_command(src: str, dst: str) -> int:
+    """Copy every complete record of a truncated MCAP (e.g. after SIGKILL) into a finalized file."""
+    from pathlib import Path
+
+    from groundstation.errors import UsageError
+
+    if not Path(src).is_file():
+        raise UsageError(f"{src}: file not found")
+    out = writable_output(dst, (".mcap",))
+    counts = recover(src, out)
+    click.echo(json.dumps(counts))
+    click.echo(f"recovered: {out}", err=True)
+    return 0 if counts["messages"] > 0 else 1
+
+

@@ -1,0 +1,244 @@
+"""The flight: states, failsafes, control and logging of one period, run by the fixed-rate loop.
+
+States and transitions (each logged as an event)::
+
+    preflight -> takeoff -> settle -> track -> hold -> landing -> done
+         any airborne state --(operator land, mocap stale with policy "land")--> landing
+         any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale with "stop")--> emergency
+
+``landing`` descends from where the reference is to below the ground and ends in ``done`` with the motors off;
+``emergency`` commands the motors off in the same period it is entered. Every failure path ends in one of the two.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from groundstation.assembly.assembly import Assembly
+from groundstation.control.allocation import allocate, allocate_bounded
+from groundstation.control.geometric import Gains, control
+from groundstation.control.model import ControlModel
+from groundstation.control.state import RigidState, Setpoint
+from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
+from groundstation.runtime.loop import Clock, LoopStats, run_fixed_rate
+
+AIRBORNE = ("takeoff", "settle", "track", "hold")
+
+
+class PoseSource(Protocol):
+    def state(self) -> RigidState | None: ...
+    def age(self) -> float: ...
+
+
+class PhysicsPoseSource:
+    """State straight from a simulated backend (with its configured noise and latency)."""
+
+    def __init__(self, backend) -> None:
+        self._backend = backend
+
+    def state(self) -> RigidState | None:
+        return self._backend.measured_state()
+
+    def age(self) -> float:
+        return self._backend.config.latency
+
+
+@dataclass(frozen=True)
+class FailsafePolicy:
+    mocap_timeout_s: float = 0.25
+    """A pose older than this is stale, s."""
+    on_mocap_stale: Literal["land", "stop"] = "land"
+    max_tilt_deg: float = 75.0
+    """Angle between body z and world z beyond which the motors stop, deg."""
+    geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
+    geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
+    """Box the measured position must stay in, world frame, m."""
+
+
+@dataclass
+class Requests:
+    """Operator requests, set from signal handlers or a key reader thread."""
+
+    land: threading.Event = field(default_factory=threading.Event)
+    stop: threading.Event = field(default_factory=threading.Event)
+
+
+@dataclass
+class Recording:
+    t: list = field(default_factory=list)
+    position: list = field(default_factory=list)
+    rotation: list = field(default_factory=list)
+    position_ref: list = field(default_factory=list)
+    rotation_desired: list = field(default_factory=list)
+    roll_target: list = field(default_factory=list)
+    motors: list = field(default_factory=list)
+    phase: list = field(default_factory=list)
+    events: list = field(default_factory=list)
+
+
+class Flight:
+    """One flight of one assembly; :meth:`run` flies it on a clock and returns what happened."""
+
+    def __init__(self, assembly: Assembly, plan: FlightPlan, backend, pose: PoseSource, *, gains: Gains | None = None,
+                 allocation: Literal["clip", "bounded"] = "clip", policy: FailsafePolicy | None = None,
+                 log=None, requests: Requests | None = None, advance_backend: bool = False,
+                 truth=None, on_status=None) -> None:
+        self.assembly, self.plan, self.backend, self.pose = assembly, plan, backend, pose
+        self.gains = gains or Gains()
+        self.model = ControlModel.from_assembly(assembly)
+        self.alloc = allocate if allocation == "clip" else allocate_bounded
+        self.policy = policy or FailsafePolicy()
+        self.log = log
+        self.requests = requests or Requests()
+        self.advance_backend = advance_backend
+        self.truth = truth  # optional callable returning the true state (simulation), recorded for metrics
+        self.on_status = on_status
+        self.phase = "preflight"
+        self.reason = ""
+        self.rec = Recording()
+        self._landing: tuple[float, Ramp] | None = None
+        self._last_u = np.zeros(4 * assembly.n)
+        self._t_wall0 = time.time()
+        self._lo = np.array(self.policy.geofence_lower)
+        self._hi = np.array(self.policy.geofence_upper)
+        self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
+
+    # -- transitions ----------------------------------------------------------------------------------------------
+    def _event(self, t: float, level: str, text: str) -> None:
+        self.rec.events.append((t, level, text))
+        if self.log is not None:
+            self.log.event(level, text, self._t_wall0 + t)
+
+    def _set_phase(self, t: float, phase: str, why: str = "") -> None:
+        if phase != self.phase:
+            self._event(t, "warning" if phase == "emergency" else "info",
+                        f"{self.phase} -> {phase}" + (f": {why}" if why else ""))
+            self.phase = phase
+
+    def _emergency(self, t: float, why: str) -> None:
+        self.backend.emergency_stop()
+        self._last_u = np.zeros_like(self._last_u)
+        self.reason = why
+        self._set_phase(t, "emergency", why)
+
+    def _begin_landing(self, t: float, from_position: np.ndarray, why: str) -> None:
+        ground = np.array(self.plan.ground)
+        touchdown = (float(from_position[0]), float(from_position[1]), float(ground[2]) - 0.02)
+        self._landing = (t, Ramp(tuple(from_position), touchdown, self.plan.landing_s))
+        self.reason = self.reason or why
+        self._set_phase(t, "landing", why)
+
+    # -- one period -----------------------------------------------------------------------------------------------
+    def step(self, k: int, t: float) -> bool:
+        if self.phase in ("done", "emergency"):
+            return False
+        if self.advance_backend:
+            self.backend.advance_to(t)
+        if k == 0:
+            self.backend.arm()
+            self._set_phase(t, "takeoff", "armed")
+        if self.requests.stop.is_set():
+            self._emergency(t, "operator stop")
+            return False
+        state, age = self.pose.state(), self.pose.age()
+        telemetry = self.backend.telemetry()
+        if not telemetry.link_ok:
+            self._emergency(t, "backend link lost")
+            return False
+        if state is None or age > self.policy.mocap_timeout_s:
+            why = f"mocap stale ({age * 1e3:.0f} ms)"
+            if self.policy.on_mocap_stale == "stop" or state is None:
+                self._emergency(t, why)
+                return False
+            if self.phase != "landing":
+                self._begin_landing(t, state.position, why)
+        if telemetry.gyro.size == 3:  # IMU rates beat differentiated mocap for the attitude loop
+            state = RigidState(state.position, state.velocity, state.rotation, telemetry.gyro)
+        if not (np.all(np.isfinite(state.position)) and np.all(np.isfinite(state.rotation))):
+            self._emergency(t, "non-finite state")
+            return False
+        if np.any(state.position < self._lo) or np.any(state.position > self._hi):
+            self._emergency(t, f"left the geofence at {np.round(state.position, 2).tolist()}")
+            return False
+        if state.rotation[2, 2] < self._cos_tilt:
+            self._emergency(t, f"tilt beyond {self.policy.max_tilt_deg:g} deg")
+            return False
+        if self.requests.land.is_set() and self.phase in AIRBORNE:
+            self._begin_landing(t, self.plan(t).position, "operator land")
+        if self._landing is not None:
+            t_land, ramp = self._landing
+            sp = ramp(t - t_land)
+            sp = Setpoint(sp.position, sp.velocity, sp.acceleration, _level(self.plan(t).rotation))
+            if t - t_land >= ramp.duration:
+                self._finish(t)
+                return False
+        else:
+            phase = self.plan.phase_at(t)
+            if phase == "done":
+                self._finish(t)
+                return False
+            self._set_phase(t, phase)
+            sp = self.plan(t)
+        out = control(state, sp, self.model, self.gains)
+        u = self.alloc(out.wrench, self.model)
+        if not np.all(np.isfinite(u)):
+            self._emergency(t, "non-finite motor command")
+            return False
+        self.backend.send(u)
+        self._last_u = u
+        self._record(t, state, sp, out, u, age)
+        return True
+
+    def _finish(self, t: float) -> None:
+        self.backend.emergency_stop()  # landed: motors off
+        self._last_u = np.zeros_like(self._last_u)
+        self._set_phase(t, "done", "landed")
+
+    def _record(self, t, state, sp, out, u, age) -> None:
+        truth = self.truth() if self.truth is not None else state
+        r = self.rec
+        r.t.append(t)
+        r.position.append(truth.position)
+        r.rotation.append(truth.rotation)
+        r.position_ref.append(sp.position)
+        r.rotation_desired.append(out.rotation_desired)
+        r.roll_target.append(roll_pitch_yaw(sp.rotation)[0])
+        r.motors.append(u)
+        r.phase.append(self.phase)
+        if self.log is not None:
+            tw = self._t_wall0 + t
+            self.log.pose("/state/pose", state.position, state.rotation, tw)
+            self.log.record("/control/setpoint", {"t": t, "position": sp.position.tolist(),
+                                                  "velocity": sp.velocity.tolist(), "phase": self.phase}, tw)
+            self.log.record("/control/wrench", {"t": t, "force": out.wrench[:3].tolist(),
+                                                "torque": out.wrench[3:].tolist()}, tw)
+            self.log.record("/motors", {"t": t, "modules": (u.reshape(-1, 4) / self.model.u_max).tolist()}, tw)
+        if self.on_status is not None:
+            self.on_status(t, self.phase, age, float(u.max() / self.model.u_max))
+
+    # -- run --------------------------------------------------------------------------------------------------------
+    def run(self, clock: Clock, rate_hz: float) -> LoopStats:
+        """Fly on ``clock`` at ``rate_hz``; the motors are off when this returns, whatever happened."""
+        try:
+            stats = run_fixed_rate(self.step, rate_hz, clock)
+        except BaseException as exc:
+            self._emergency(self.rec.t[-1] if self.rec.t else 0.0, f"{type(exc).__name__}: {exc}")
+            raise
+        finally:
+            if self.phase not in ("done", "emergency"):
+                self._emergency(self.rec.t[-1] if self.rec.t else 0.0, "loop ended")
+        if self.log is not None:
+            self.log.record("/loop/timing", stats.summary(), self._t_wall0 + (self.rec.t[-1] if self.rec.t else 0))
+        return stats
+
+
+def _level(rotation: np.ndarray) -> np.ndarray:
+    """Keep only the yaw of an attitude target (landing levels the assembly)."""
+    yaw = roll_pitch_yaw(rotation)[2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

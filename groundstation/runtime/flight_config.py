@@ -1,0 +1,103 @@
+"""Flight configuration files (``configs/flights/*.toml``): everything ``groundstation fly`` needs.
+
+Paths (assembly, log directory) are relative to the config file. Unknown keys are errors that name the file and
+the key path. Only the simulated backend exists so far; ``crazyflie`` and ``mavlink`` are rejected by name.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import ConfigDict, Field
+from pydantic.dataclasses import dataclass
+
+from groundstation import config
+
+_STRICT = ConfigDict(extra="forbid")
+
+
+@dataclass(frozen=True, config=_STRICT)
+class BackendSection:
+    kind: Literal["sim"] = "sim"
+    """Backend by name; the simulator (PyBullet) is the only one implemented so far."""
+    physics_hz: float = Field(240.0, gt=0)
+    motor_time_constant: float = Field(0.02, ge=0)
+    """s"""
+
+
+@dataclass(frozen=True, config=_STRICT)
+class MocapSection:
+    body: str = "assembly"
+    """Rigid body name; the pose key is ``<key_prefix>/<body>/pose``."""
+    key_prefix: str = "mocap"
+    endpoint: str = "tcp/127.0.0.1:7448"
+    """Zenoh endpoint (loopback by default; multicast scouting is always off)."""
+    listen: bool = False
+    """The ground station listens on the endpoint (True) or connects to it (False, the default: the mocap
+    bridge or the simulator listens)."""
+    rate_hz: float = Field(100.0, gt=0)
+    """Simulated mocap only: publish rate, Hz."""
+    position_noise: float = Field(0.0005, ge=0)
+    """Simulated mocap only: position noise std, m."""
+    attitude_noise_deg: float = Field(0.1, ge=0)
+    """Simulated mocap only: attitude noise std, deg."""
+    latency_s: float = Field(0.005, ge=0)
+    """Simulated mocap only: latency, s."""
+    max_speed: float = Field(10.0, gt=0)
+    """Poses implying faster motion than this are rejected as outliers, m/s."""
+
+
+@dataclass(frozen=True, config=_STRICT)
+class TrajectorySection:
+    kind: Literal["hover", "circle", "figure8"] = "figure8"
+    size: float = Field(0.6, gt=0)
+    """Figure-8 l0 or circle radius, m."""
+    period: float = Field(8.0, gt=0)
+    """Figure-8 t_c or circle period, s."""
+    height: float = Field(1.0, gt=0)
+    """h0, m."""
+    duration: float = Field(16.0, gt=0)
+    """Tracking time, s."""
+    roll_deg: float = 0.0
+    takeoff_s: float = Field(3.0, gt=0)
+    landing_s: float = Field(3.0, gt=0)
+
+
+@dataclass(frozen=True, config=_STRICT)
+class GainsSection:
+    position_hz: float = Field(0.8, gt=0)
+    position_zeta: float = Field(1.0, gt=0)
+    attitude_hz: float = Field(4.0, gt=0)
+    attitude_zeta: float = Field(0.9, gt=0)
+
+
+@dataclass(frozen=True, config=_STRICT)
+class FailsafeSection:
+    mocap_timeout_s: float = Field(0.25, gt=0)
+    on_mocap_stale: Literal["land", "stop"] = "land"
+    max_tilt_deg: float = Field(75.0, gt=0, le=180)
+    geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
+    geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
+
+
+@dataclass(frozen=True, config=_STRICT)
+class FlightConfig:
+    assembly: str
+    """Assembly file, relative to this config."""
+    rate_hz: float = Field(250.0, ge=50, le=1000)
+    """Control loop rate, Hz."""
+    log_dir: str = "../../out/flights"
+    """Where MCAP logs go, relative to this config."""
+    allocation: Literal["clip", "bounded"] = "clip"
+    backend: BackendSection = BackendSection()
+    mocap: MocapSection = MocapSection()
+    trajectory: TrajectorySection = TrajectorySection()
+    gains: GainsSection = GainsSection()
+    failsafe: FailsafeSection = FailsafeSection()
+
+
+def load_flight_config(path: str | Path) -> tuple[FlightConfig, Path]:
+    """The validated config and the directory its relative paths start from."""
+    p = Path(path)
+    return config.load(FlightConfig, p), p.resolve().parent

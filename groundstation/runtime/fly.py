@@ -1,0 +1,238 @@
+"""``fly``: load a flight config, connect, check, arm, take off, track, land, disarm; log everything to MCAP.
+
+The simulated backend runs inside the same process and publishes its physics pose over Zenoh through a virtual
+mocap, so a dry run exercises the same loop, Zenoh path and logging as a flight with real mocap. The loop runs
+on the wall clock; the simulator is advanced to the wall time at the start of every period.
+
+Operator: the first Ctrl-C (or SIGTERM) lands, a second one stops the motors at once. Every exit path ends with
+the motors off and the MCAP file finalized.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+from groundstation import __version__
+from groundstation.assembly.assembly_file import assembly_record, load_assembly
+from groundstation.control.geometric import Gains
+from groundstation.control.model import ControlModel
+from groundstation.control.trajectory import FlightPlan, make_track
+from groundstation.errors import ConfigError
+from groundstation.flightlog.mcap_log import FlightLog
+from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session, pose_key
+from groundstation.runtime.closed_loop import FlightVolume, PreflightError, hover_check, record_of, volume_check
+from groundstation.runtime.flight import FailsafePolicy, Flight, Requests
+from groundstation.runtime.flight_config import FlightConfig, load_flight_config
+from groundstation.runtime.loop import WallClock
+
+PREFLIGHT_TIMEOUT_S = 3.0
+STILL_SPEED = 0.2
+"""Preflight: the estimated speed must be below this (mocap noise alone gives a few cm/s), m/s."""
+
+
+@dataclass
+class Faults:
+    """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight."""
+
+    mocap_paused: bool = False
+    """The virtual mocap stops publishing."""
+    corrupt_pose: bool = False
+    """The pose source returns NaN."""
+    link_lost: bool = False
+    """The backend reports its link lost."""
+
+
+@dataclass
+class FlyResult:
+    log_path: Path
+    phase: str
+    """Final state: ``done`` (landed) or ``emergency`` (motors stopped)."""
+    reason: str
+    metrics: dict
+    events: list = field(default_factory=list)
+
+
+class _LoggedPose:
+    """The Zenoh subscriber as the flight's pose source; logs every received payload unchanged."""
+
+    def __init__(self, sub: PoseSubscriber, log: FlightLog, topic: str, faults: Faults, wall_offset: float) -> None:
+        self._sub, self._log, self._topic, self._faults = sub, log, topic, faults
+        self._offset = wall_offset
+
+    def state(self):
+        for t_mono, payload in self._sub.drain_raw():
+            self._log.raw_protobuf(self._topic, PoseInFrame, payload, t_mono + self._offset)
+        s = self._sub.state()
+        if s is not None and self._faults.corrupt_pose:
+            return type(s)(np.full(3, np.nan), s.velocity, s.rotation, s.omega)
+        return s
+
+    def age(self) -> float:
+        return self._sub.age()
+
+
+def code_version() -> str:
+    try:
+        rev = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parent).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        rev = ""
+    return f"{__version__}" + (f" ({rev})" if rev else "")
+
+
+def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
+        requests: Requests | None = None, faults: Faults | None = None,
+        on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False) -> FlyResult:
+    cfg, base = load_flight_config(config_path)
+    src = str(config_path)
+    if duration is not None:
+        if not duration > 0:
+            raise ConfigError(f"duration must be positive, got {duration}")
+        cfg = FlightConfig(**{**_as_dict(cfg), "trajectory": {**_as_dict(cfg.trajectory), "duration": duration}})
+    try:
+        assembly, _ = load_assembly(base / cfg.assembly)
+    except ConfigError as exc:
+        raise ConfigError(f"{exc}", path=src, key="assembly") from None
+    stamp_name = time.strftime("flight-%Y%m%d-%H%M%S.mcap")
+    log_file = Path(log_path) if log_path else (base / cfg.log_dir).resolve() / stamp_name
+    try:
+        log_file.parent.mkdir(parents=True, exist_ok=True)
+        log_file.touch()
+    except OSError as exc:
+        raise ConfigError(f"log directory cannot be written: {exc}", path=src, key="log_dir") from None
+    faults = faults or Faults()
+    requests = requests or Requests()
+    t = cfg.trajectory
+    track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
+    gains = Gains(**_as_dict(cfg.gains))
+    policy = FailsafePolicy(**_as_dict(cfg.failsafe))
+
+    from sim.pybullet_backend import PyBulletBackend, SimConfig, resting_height
+    from sim.virtual_mocap import VirtualMocap
+
+    plan = FlightPlan((0.0, 0.0, resting_height(assembly)), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
+    model = ControlModel.from_assembly(assembly)
+    hover_check(model, plan)
+    volume_check(plan, FlightVolume(tuple(np.array(policy.geofence_lower) + 0.2),
+                                    tuple(np.array(policy.geofence_upper) - 0.2)))
+
+    key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
+    with ExitStack() as stack:
+        m = cfg.mocap
+        # The simulator plays the mocap system: it listens, the ground station connects (as with a bridge).
+        ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
+        sim_session = open_session(listen=theirs, connect=ours)
+        stack.callback(sim_session.close)
+        gs_session = open_session(listen=ours, connect=theirs)
+        stack.callback(gs_session.close)
+        sub = PoseSubscriber(gs_session, key, SubscriberSettings(max_speed=m.max_speed))
+        stack.callback(sub.close)
+        publisher = PosePublisher(sim_session, key)
+        stack.callback(publisher.close)
+        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s)
+
+        def observe(t_sim, state):
+            vmocap.paused = faults.mocap_paused
+            vmocap.on_step(t_sim, state)
+
+        backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
+                                                      motor_time_constant=cfg.backend.motor_time_constant),
+                                  observers=[observe])
+        backend.connect()
+        stack.callback(backend.close)
+        stack.callback(backend.emergency_stop)  # runs first on the way out: motors off whatever happened
+
+        log = FlightLog(log_file, {"config": json.dumps(_as_dict(cfg)), "config_path": src,
+                                   "code_version": code_version(),
+                                   "assembly": json.dumps(assembly_record(assembly))})
+        stack.callback(log.close)
+        wall_offset = time.time() - time.monotonic()
+        pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, wall_offset)
+
+        # Preflight: let the simulator settle on the ground and the mocap stream start.
+        deadline = time.monotonic() + PREFLIGHT_TIMEOUT_S
+        t_pre = 0.0
+        while (sub.latest() is None or sub.received < 10) and time.monotonic() < deadline:
+            t_pre += 0.02
+            backend.advance_to(t_pre)
+            time.sleep(0.005)
+        s = pose.state()
+        report = backend.preflight()
+        issues = list(report.issues)
+        if s is None:
+            issues.append(f"mocap does not see '{m.body}' on {key} via {m.endpoint}")
+        else:
+            if s.rotation[2, 2] < np.cos(np.radians(10)):
+                issues.append("assembly is not level")
+            if np.linalg.norm(s.velocity) > STILL_SPEED:
+                issues.append(f"assembly is moving ({np.linalg.norm(s.velocity):.2f} m/s)")
+        log.scene(assembly, time.time())
+        if issues:
+            log.event("error", "preflight failed: " + "; ".join(issues), time.time())
+            raise PreflightError("preflight failed: " + "; ".join(issues))
+        log.event("info", "preflight passed", time.time())
+
+        class _Clocked:
+            """The backend advanced relative to where preflight left it."""
+
+            def __init__(self, b, t0):
+                self._b, self._t0 = b, t0
+
+            def advance_to(self, t):
+                self._b.link_ok = not faults.link_lost
+                if on_period is not None:
+                    on_period(t)
+                self._b.advance_to(self._t0 + t)
+
+            def __getattr__(self, name):
+                return getattr(self._b, name)
+
+        flight = Flight(assembly, plan, _Clocked(backend, backend.time), pose, gains=gains,
+                        allocation=cfg.allocation, policy=policy, log=log, requests=requests, advance_backend=True,
+                        truth=backend.true_state, on_status=on_status)
+        restore = _install_signals(requests) if handle_signals else None
+        wall0 = time.perf_counter()
+        try:
+            stats = flight.run(WallClock(), cfg.rate_hz)
+        finally:
+            if restore is not None:
+                restore()
+        record = record_of(flight, time.perf_counter() - wall0, plan.duration, stats)
+        log.record("/flight/summary", {k: v for k, v in record.metrics.items() if k != "loop"}, time.time())
+    if log.error is not None:
+        raise ConfigError(f"the log writer failed: {log.error}", path=str(log_file))
+    return FlyResult(log_file, flight.phase, flight.reason, record.metrics, flight.rec.events)
+
+
+def _install_signals(requests: Requests):
+    """First SIGINT/SIGTERM: land. Second: stop the motors. Returns a function restoring the old handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        if requests.land.is_set():
+            requests.stop.set()
+        requests.land.set()
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore():
+        for s, h in old.items():
+            signal.signal(s, h)
+
+    return restore
+
+
+def _as_dict(obj) -> dict:
+    return asdict(obj)

@@ -1,0 +1,44 @@
+"""Virtual motion capture: the simulator's physics pose published on Zenoh like a real mocap system.
+
+Called after every physics step; publishes at ``rate_hz`` with Gaussian noise and a latency (poses are held back
+and sent ``latency`` later), stamped with the host's monotonic clock at measurement time, the same codec and
+keys the ``mocap-bridge`` uses, so a dry run goes through Zenoh end to end.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+
+from groundstation.control.state import RigidState
+from groundstation.mocap.zenoh_link import PosePublisher
+from groundstation.rotations import rotvec_to_matrix
+
+
+class VirtualMocap:
+    def __init__(self, publisher: PosePublisher, rate_hz: float = 100.0, position_noise: float = 0.0,
+                 attitude_noise: float = 0.0, latency: float = 0.0, seed: int = 0, clock=time.monotonic) -> None:
+        self._pub = publisher
+        self._period = 1.0 / rate_hz
+        self._next = 0.0
+        self._pos_noise, self._att_noise, self._latency = position_noise, attitude_noise, latency
+        self._rng = np.random.default_rng(seed)
+        self._clock = clock
+        self._pending: deque = deque()
+        self.published = 0
+        self.paused = False
+        """While True nothing is published (fault injection: a mocap dropout)."""
+
+    def on_step(self, t_sim: float, state: RigidState) -> None:
+        if t_sim + 1e-9 >= self._next:
+            self._next += self._period * max(1, int((t_sim - self._next) / self._period) + 1)
+            pos = state.position + self._rng.normal(0.0, self._pos_noise, 3)
+            rot = state.rotation @ rotvec_to_matrix(self._rng.normal(0.0, self._att_noise, 3))
+            self._pending.append((t_sim + self._latency, pos, rot, self._clock()))
+        while self._pending and self._pending[0][0] <= t_sim + 1e-9:
+            _, pos, rot, stamp = self._pending.popleft()
+            if not self.paused:
+                self._pub.publish(pos, rot, stamp)
+                self.published += 1

@@ -1,0 +1,42 @@
+import time
+
+import numpy as np
+import pytest
+
+from groundstation.mocap.zenoh_link import LinkError, PosePublisher, PoseSubscriber, open_session
+
+
+@pytest.fixture
+def sessions():
+    a = open_session(listen=["tcp/127.0.0.1:7481"])
+    b = open_session(connect=["tcp/127.0.0.1:7481"])
+    yield a, b
+    b.close()
+    a.close()
+
+
+def test_newest_sample_velocity_and_jump_rejection(sessions):
+    a, b = sessions
+    sub = PoseSubscriber(b, "mocap/body/pose")
+    pub = PosePublisher(a, "mocap/body/pose")
+    time.sleep(0.3)
+    t0 = time.monotonic()
+    for k in range(60):  # 0.5 m/s along x at 100 Hz, stamped on a synthetic clock
+        pub.publish(np.array([0.005 * k, 0.0, 1.0]), np.eye(3), t0 + 0.01 * k)
+        time.sleep(0.002)
+    pub.publish(np.array([5.0, 0.0, 1.0]), np.eye(3), t0 + 0.6)  # a 4.7 m jump in 10 ms: an outlier
+    assert sub.wait_for(60, timeout=2.0)
+    time.sleep(0.2)
+    s = sub.state()
+    assert sub.received == 61 and sub.rejected == 1
+    np.testing.assert_allclose(s.position, [0.295, 0, 1.0])
+    assert s.velocity[0] == pytest.approx(0.5, rel=0.05)
+    assert 0 <= sub.age() < 1.0
+    assert len(sub.drain_raw()) == 61 and sub.drain_raw() == []
+    sub.close()
+    pub.close()
+
+
+def test_unopenable_endpoint():
+    with pytest.raises(LinkError):
+        open_session(listen=["tcp/256.1.1.1:1"])

@@ -1,0 +1,106 @@
+"""End-to-end dry runs: Zenoh mocap + fixed-rate loop + PyBullet + MCAP, read back."""
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from groundstation.errors import ConfigError
+from groundstation.mocap.zenoh_link import LinkError
+from groundstation.runtime.flight import Requests
+from groundstation.runtime.fly import Faults, fly
+
+ROOT = Path(__file__).resolve().parents[2]
+FLIGHT = ROOT / "configs/flights/toy_figure8_sim.toml"
+
+
+def read_log(path):
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        counts = {c.topic: summary.statistics.channel_message_counts.get(c.id, 0) for c in summary.channels.values()}
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    with open(path, "rb") as fh:
+        logs = [(m.log_time, m.data) for _, ch, m in make_reader(fh).iter_messages(topics=["/log"])]
+    with open(path, "rb") as fh:
+        motors = [(m.log_time, json.loads(m.data)) for _, ch, m in make_reader(fh).iter_messages(topics=["/motors"])]
+    return counts, meta, logs, motors
+
+
+def config_with(tmp_path, **changes) -> Path:
+    text = FLIGHT.read_text().replace('assembly = "../assemblies/toy_v2.json"',
+                                      f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
+    endpoint = changes.pop("endpoint", "tcp/127.0.0.1:7461")
+    text = text.replace('endpoint = "tcp/127.0.0.1:7448"', f'endpoint = "{endpoint}"')
+    for old, new in changes.items():
+        text = text.replace(old, new)
+    p = tmp_path / "flight.toml"
+    p.write_text(text)
+    return p
+
+
+def test_short_figure8_end_to_end(tmp_path):
+    cfg = config_with(tmp_path)
+    log = tmp_path / "f.mcap"
+    res = fly(cfg, duration=4.0, log_path=log)
+    assert res.phase == "done" and res.reason == ""
+    assert res.metrics["pos_rmse_m"] < 0.03 and res.metrics["max_roll_error_deg"] < 1.0
+    counts, meta, logs, motors = read_log(log)
+    for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control/setpoint", "/control/wrench",
+                  "/motors", "/log", "/loop/timing", "/flight/summary"):
+        assert counts.get(topic, 0) > 0, topic
+    assert counts["/mocap/assembly"] > 100 * 8  # ~100 Hz over the whole flight
+    assert "config" in meta and "code_version" in meta and "assembly" in meta
+    assert json.loads(meta["config"]["value"])["rate_hz"] == 250
+    loop = res.metrics["loop"]
+    assert loop["rate_hz"] == 250 and loop["periods"] > 250 * 8
+
+
+@pytest.mark.parametrize("fault, expect_phase, reason", [
+    ("mocap_paused", "done", "mocap stale"),  # policy "land": lands on the last estimate
+    ("corrupt_pose", "emergency", "non-finite state"),
+    ("link_lost", "emergency", "backend link lost"),
+])
+def test_failsafes_stop_or_land_and_are_logged(tmp_path, fault, expect_phase, reason):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7462")
+    faults = Faults()
+    t_fault = 4.0
+
+    def inject(t):
+        if t >= t_fault:
+            setattr(faults, fault, True)
+
+    log = tmp_path / "f.mcap"
+    res = fly(cfg, duration=6.0, log_path=log, faults=faults, on_period=inject)
+    assert res.phase == expect_phase and reason in res.reason
+    counts, meta, logs, motors = read_log(log)
+    texts = [d.decode(errors="ignore") for _, d in logs]
+    assert any(reason in t for t in texts)
+    if expect_phase == "emergency":
+        # the last logged command is before the fault; nothing non-zero is commanded after it
+        t_events = [t for t, d in logs if reason.encode() in d]
+        after = [m for t, m in motors if t > t_events[0]]
+        assert after == []
+
+
+def test_operator_land_request(tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7465")
+    req = Requests()
+    res = fly(cfg, duration=8.0, log_path=tmp_path / "f.mcap", requests=req,
+              on_period=lambda t: req.land.set() if t > 5.0 else None)
+    assert res.phase == "done" and "operator land" in res.reason
+    assert res.metrics["simulated_s"] < 5.0 + 3.0 + 1.0
+
+
+def test_bad_inputs_never_arm(tmp_path):
+    with pytest.raises(ConfigError, match="unknown key"):
+        fly(config_with(tmp_path, **{"rate_hz = 250": "rate_hz = 250\nspeed = 3"}))
+    with pytest.raises(ConfigError, match="assembly"):
+        fly(config_with(tmp_path, **{str(ROOT / "configs/assemblies/toy_v2.json"): "/nonexistent.json"}))
+    with pytest.raises(ConfigError, match="backend.kind"):
+        fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "crazyflie"'}))
+    with pytest.raises(ConfigError, match="log_dir"):
+        fly(config_with(tmp_path, **{'log_dir = "../../out/flights"': 'log_dir = "/proc/nope"'}))
+    with pytest.raises(LinkError):
+        fly(config_with(tmp_path, endpoint="tcp/256.0.0.1:1"), log_path=tmp_path / "x.mcap")
