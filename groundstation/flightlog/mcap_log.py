@@ -20,6 +20,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
@@ -37,6 +38,12 @@ CHUNK_BYTES = 32 * 1024
 FLUSH_S = 1.0
 _JSON_SCHEMA = json.dumps({"type": "object"}).encode()
 LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
+
+
+def _jsonable(value):
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
+    raise TypeError(f"cannot log a {type(value).__name__} as JSON")
 
 
 def _stamp(t: float) -> Timestamp:
@@ -70,21 +77,28 @@ class FlightLog:
         self._put(("raw", topic, (message_type, payload), t))
 
     def record(self, topic: str, data: dict, t: float) -> None:
+        """A JSON record; numpy values are converted on the writer thread (pass copies of arrays you reuse)."""
         self._put(("json", topic, data, t))
 
     def event(self, level: str, text: str, t: float, name: str = "groundstation") -> None:
         self._put(("pb", "/log", Log(timestamp=_stamp(t), level=LEVELS[level], message=text, name=name), t))
 
     def pose(self, topic: str, position, rotation, t: float) -> None:
+        """A pose on ``topic`` and the matching world -> body transform on ``/tf`` (built on the writer thread)."""
+        self._put(("pose", topic, (np.array(position, float), np.array(rotation, float)), t))
+
+    def _pose_messages(self, topic: str, position, rotation, t: float) -> None:
         msg = PoseInFrame(timestamp=_stamp(t), frame_id="world")
         msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
         o = msg.pose.orientation
         o.x, o.y, o.z, o.w = matrix_to_quat(rotation)
-        self.protobuf(topic, msg, t)
         tf = FrameTransform(timestamp=_stamp(t), parent_frame_id="world", child_frame_id="body")
         tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in position)
         tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = o.x, o.y, o.z, o.w
-        self.protobuf("/tf", tf, t)
+        for top, m in ((topic, msg), ("/tf", tf)):
+            ns = int(t * 1e9)
+            self._writer.add_message(self._channel(top, "pb", type(m)), log_time=ns, data=m.SerializeToString(),
+                                     publish_time=ns)
 
     def scene(self, assembly: Assembly, t: float) -> None:
         """The assembly as cubes (modules) and arrows (thrust axes) in the ``body`` frame."""
@@ -127,10 +141,12 @@ class FlightLog:
                     item = None
                 if item is not None and item[0] == "stop":
                     break
-                if item is not None:
+                if item is not None and item[0] == "pose":
+                    self._pose_messages(item[1], *item[2], item[3])
+                elif item is not None:
                     kind, topic, data, t = item
                     if kind == "json":
-                        cid, payload = self._channel(topic, kind, None), json.dumps(data).encode()
+                        cid, payload = self._channel(topic, kind, None), json.dumps(data, default=_jsonable).encode()
                     elif kind == "raw":
                         cid, payload = self._channel(topic, kind, data[0]), data[1]
                     else:

@@ -213,11 +213,11 @@ class Flight:
         if self.log is not None:
             tw = self._t_wall0 + t
             self.log.pose("/state/pose", state.position, state.rotation, tw)
-            self.log.record("/control/setpoint", {"t": t, "position": sp.position.tolist(),
-                                                  "velocity": sp.velocity.tolist(), "phase": self.phase}, tw)
-            self.log.record("/control/wrench", {"t": t, "force": out.wrench[:3].tolist(),
-                                                "torque": out.wrench[3:].tolist()}, tw)
-            self.log.record("/motors", {"t": t, "modules": (u.reshape(-1, 4) / self.model.u_max).tolist()}, tw)
+            # Arrays are fresh each period, so no copies are needed; the writer thread converts them.
+            self.log.record("/control/setpoint", {"t": t, "position": sp.position, "velocity": sp.velocity,
+                                                  "phase": self.phase}, tw)
+            self.log.record("/control/wrench", {"t": t, "force": out.wrench[:3], "torque": out.wrench[3:]}, tw)
+            self.log.record("/motors", {"t": t, "modules": u.reshape(-1, 4) / self.model.u_max}, tw)
         if self.on_status is not None:
             self.on_status(t, self.phase, age, float(u.max() / self.model.u_max))
 
