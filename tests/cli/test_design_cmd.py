@@ -6,22 +6,15 @@ import pytest
 from matplotlib.image import imread
 
 from groundstation.assembly.assembly_file import load_assembly
-from groundstation.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 TOY = str(ROOT / "configs/tasks/toy_push_y.toml")
 
 
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as ex:
-        main(list(args))
-    out, err = capsys.readouterr()
-    return ex.value.code, out, err
 
-
-def test_toy_design_outputs(capsys, tmp_path):
+def test_toy_design_outputs(cli, tmp_path):
     out, table, figs = tmp_path / "a.json", tmp_path / "t.csv", tmp_path / "figs"
-    code, stdout, err = run(capsys, "design", TOY, "--max-modules", "3", "--json", "--out", str(out),
+    code, stdout, err = cli("design", TOY, "--max-modules", "3", "--json", "--out", str(out),
                             "--table", str(table), "--figures", str(figs))
     assert code == 0
     best = json.loads(stdout)
@@ -34,8 +27,8 @@ def test_toy_design_outputs(capsys, tmp_path):
         assert imread(figs / name).shape[0] > 300
 
 
-def test_infeasible_within_max(capsys):
-    code, out, err = run(capsys, "design", TOY, "--max-modules", "1")
+def test_infeasible_within_max(cli):
+    code, out, err = cli("design", TOY, "--max-modules", "1")
     assert code == 1 and "no feasible design with up to 1 modules" in err
 
 
@@ -45,6 +38,6 @@ def test_infeasible_within_max(capsys):
     (["design", TOY, "--results", "r.txt"], "unsupported file type"),
     (["design", "missing.toml"], "missing.toml: file not found"),
 ])
-def test_bad_input(capsys, args, fragment):
-    code, out, err = run(capsys, *args)
+def test_bad_input(cli, args, fragment):
+    code, out, err = cli(*args)
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err

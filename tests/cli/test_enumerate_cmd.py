@@ -4,19 +4,11 @@ import sys
 
 import pytest
 
-from groundstation.cli import main
 from groundstation.design.candidates import read_candidates
 
 
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as ex:
-        main(list(args))
-    out, err = capsys.readouterr()
-    return ex.value.code, out, err
-
-
-def test_json_lines(capsys):
-    code, out, err = run(capsys, "enumerate", "7", "--json")
+def test_json_lines(cli):
+    code, out, err = cli("enumerate", "7", "--json")
     rows = [json.loads(line) for line in out.splitlines()]
     assert code == 0
     assert [r["n"] for r in rows] == list(range(1, 8))
@@ -25,16 +17,16 @@ def test_json_lines(capsys):
     assert all(r["cpu_s"] >= 0 for r in rows)
 
 
-def test_table_and_out_and_draw(capsys, tmp_path):
+def test_table_and_out_and_draw(cli, tmp_path):
     out_file, png = tmp_path / "c.json", tmp_path / "n5.png"
-    code, out, err = run(capsys, "enumerate", "5", "--out", str(out_file), "--draw", str(png))
+    code, out, err = cli("enumerate", "5", "--out", str(out_file), "--draw", str(png))
     assert code == 0 and "non-isomorphic" in out and "24" in out
     assert len(read_candidates(out_file).levels[5]) == 24
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_sampled_json(capsys):
-    code, out, _ = run(capsys, "enumerate", "9", "--sample", "100", "--seed", "3", "--json")
+def test_sampled_json(cli):
+    code, out, _ = cli("enumerate", "9", "--sample", "100", "--seed", "3", "--json")
     last = json.loads(out.splitlines()[-1])
     assert code == 0 and last["kept"] == 100 and last["non_isomorphic"] > 100
 
@@ -48,8 +40,8 @@ def test_sampled_json(capsys):
     (["enumerate", "4", "--scheme", "spread"], "only apply with --sample"),
     (["enumerate", "four"], "not a valid integer"),
 ])
-def test_bad_input_one_line_nonzero(capsys, args, fragment):
-    code, out, err = run(capsys, *args)
+def test_bad_input_one_line_nonzero(cli, args, fragment):
+    code, out, err = cli(*args)
     assert code == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err

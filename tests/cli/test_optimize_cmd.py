@@ -4,22 +4,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundstation.cli import main
-
 ROOT = Path(__file__).resolve().parents[2]
 TOY = str(ROOT / "configs/tasks/toy_push_y.toml")
 
 
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as ex:
-        main(list(args))
-    out, err = capsys.readouterr()
-    return ex.value.code, out, err
 
-
-def test_json_result_keys(capsys, tmp_path):
+def test_json_result_keys(cli, tmp_path):
     out_file = tmp_path / "a.json"
-    code, out, err = run(capsys, "optimize", TOY, "--topology", "oS", "--json", "--out", str(out_file))
+    code, out, err = cli("optimize", TOY, "--topology", "oS", "--json", "--out", str(out_file))
     rec = json.loads(out)
     assert code == 0
     for key in ("status", "feasible", "n", "cost", "angles_deg", "modules", "rotors", "u", "wrenches",
@@ -33,10 +25,10 @@ def test_json_result_keys(capsys, tmp_path):
     assert np.allclose(np.linalg.norm([r["axis"] for r in rec["rotors"]], axis=1), 1)
 
 
-def test_infeasible_exit_code(capsys, tmp_path):
+def test_infeasible_exit_code(cli, tmp_path):
     task = tmp_path / "t.toml"
     task.write_text('[[wrench]]\nforce = [3.0, 0.0, 0.0]\n[[wrench]]\nforce = [-3.0, 0.0, 0.0]\n')
-    code, out, err = run(capsys, "optimize", str(task), "--topology", "o", "--starts", "0")
+    code, out, err = cli("optimize", str(task), "--topology", "o", "--starts", "0")
     assert code == 1 and "no feasible design" in err and "Traceback" not in err
 
 
@@ -45,6 +37,6 @@ def test_infeasible_exit_code(capsys, tmp_path):
     (["optimize", TOY, "--topology", "oE", "--starts", "a,b"], "--starts"),
     (["optimize", "missing.toml", "--topology", "oE"], "missing.toml: file not found"),
 ])
-def test_bad_input(capsys, args, fragment):
-    code, out, err = run(capsys, *args)
+def test_bad_input(cli, args, fragment):
+    code, out, err = cli(*args)
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1

@@ -4,22 +4,14 @@ from pathlib import Path
 import pytest
 from matplotlib.image import imread
 
-from groundstation.cli import main
-
 ROOT = Path(__file__).resolve().parents[2]
 TOY = str(ROOT / "configs/assemblies/toy_v2.json")
 
 
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as ex:
-        main(list(args))
-    out, err = capsys.readouterr()
-    return ex.value.code, out, err
 
-
-def test_json_metrics_and_plot(capsys, tmp_path):
+def test_json_metrics_and_plot(cli, tmp_path):
     png = tmp_path / "f.png"
-    code, out, err = run(capsys, "simulate", TOY, "--trajectory", "hover", "--duration", "2", "--json",
+    code, out, err = cli("simulate", TOY, "--trajectory", "hover", "--duration", "2", "--json",
                          "--plot", str(png))
     m = json.loads(out)
     assert code == 0
@@ -36,15 +28,15 @@ def test_json_metrics_and_plot(capsys, tmp_path):
     (["simulate", TOY, "--height", "9"], "flight volume"),
     (["simulate", TOY, "--allocation", "magic"], "unknown allocation"),
 ])
-def test_bad_input(capsys, args, fragment):
-    code, out, err = run(capsys, *args)
+def test_bad_input(cli, args, fragment):
+    code, out, err = cli(*args)
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_invalid_assembly_file(capsys, tmp_path):
+def test_invalid_assembly_file(cli, tmp_path):
     rec = json.loads(Path(TOY).read_text())
     rec["modules"][0]["position"] = [1, 2, 3]
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(rec))
-    code, out, err = run(capsys, "simulate", str(bad))
+    code, out, err = cli("simulate", str(bad))
     assert code == 2 and "modules[0].position" in err
