@@ -18,7 +18,11 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
+
+from sim.quiet import quiet_stdout
+
+with quiet_stdout():  # pybullet prints its build date on stdout at import, which would corrupt --json output
+    import pybullet as pb
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.backends.base import PreflightReport, Telemetry

@@ -23,7 +23,9 @@ EXIT_EMERGENCY = 1
 @click.option("--log", "log", default=None, metavar="FILE.mcap", help="Log here instead of the config's log_dir.")
 @click.option("--json", "as_json", is_flag=True, help="Print the flight's metrics as one JSON object.")
 def fly_command(flight: str, duration: float | None, log: str | None, as_json: bool) -> int:
-    """Fly a flight config: connect, preflight, arm, take off, track, land. Ctrl-C lands, twice stops motors."""
+    """Fly a flight config: connect, preflight, arm, take off, track, land.
+
+    Ctrl-C (or l) lands; a second Ctrl-C (or k) stops the motors at once."""
     from groundstation.runtime.fly import fly
 
     log_path = writable_output(log, (".mcap",)) if log else None
@@ -38,13 +40,16 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         if live is not None and now - last[0] > 0.2:
             last[0] = now
             live.update(f"[bold]{phase}[/] t={t:6.1f} s  mocap age {age * 1e3:5.1f} ms  worst motor {worst:4.0%}"
-                        "   (Ctrl-C: land, twice: stop motors)")
+                        "   (l or Ctrl-C: land; k or Ctrl-C twice: stop motors)")
+
+    from groundstation.runtime.keys import KeyReader
 
     if live is not None:
         live.start()
     try:
-        result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
-                     handle_signals=True)
+        with KeyReader(requests):
+            result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
+                         handle_signals=True)
     finally:
         if live is not None:
             live.stop()
@@ -92,3 +97,24 @@ def recover_command(src: str, dst: str) -> int:
     return 0 if counts["messages"] > 0 else 1
 
 
+
+
+@click.command("mocap-bridge")
+@click.option("--system", required=True, help="vicon, optitrack, qualisys, vrpn or mock.")
+@click.option("--host", default="", help="Mocap server address (unused for mock).")
+@click.option("--bodies", required=True, help="Comma-separated rigid body names to publish.")
+@click.option("--endpoint", default="tcp/127.0.0.1:7448", show_default=True, help="Zenoh endpoint to listen on.")
+@click.option("--key-prefix", default="mocap", show_default=True)
+@click.option("--y-up", is_flag=True, help="Convert a y-up stream (OptiTrack default) to z-up.")
+@click.option("--mock-bodies", default="", help='Mock system bodies, e.g. "a(0,0,1,1,0,0,0)" (x,y,z,qw,qx,qy,qz).')
+@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key_prefix: str, y_up: bool,
+                         mock_bodies: str, duration: float | None) -> int:
+    """Publish motion-capture poses on Zenoh (foxglove.PoseInFrame on <prefix>/<body>/pose)."""
+    from groundstation.mocap.bridge import run_bridge
+
+    names = [b.strip() for b in bodies.split(",") if b.strip()]
+    stats = run_bridge(system, host, names, endpoint, key_prefix, y_up=y_up, mock_bodies=mock_bodies,
+                       duration=duration)
+    click.echo(json.dumps({"frames": stats.frames, "published": stats.published, "missing": stats.missing}))
+    return 0

@@ -54,6 +54,10 @@ class SolverOptions:
     """Re-solves allowed for activating pairs that came close."""
     max_iter: int = 3000
     """Ipopt iteration limit per solve."""
+    first_pass_max_iter: int = 200
+    """Iteration limit of every start in a first pass over the starts; only if no start is feasible are the
+    starts run again up to ``max_iter``. A start that converges slowly (n = 30: 486 iterations from one start,
+    61 from another) then cannot eat the time another start needs."""
     tol: float = 1e-8
     """Ipopt convergence tolerance (scaled problem)."""
     free_yaw: bool = True
@@ -272,7 +276,7 @@ class _Problem:
                      for o, r in zip(offsets, self.rot, strict=True)]
         self.cost = sum(float(weights[j]) * ca.sumsqr(self.v[:, j]) for j in range(k))
 
-    def solve(self, alpha0, yaw0, v0, pairs, planes0):
+    def solve(self, alpha0, yaw0, v0, pairs, planes0, max_iter: int):
         """Solve with the given active pairs; ``planes0`` holds (w, c) starting values per pair."""
         r = self.params.r
         w = ca.SX.sym("w", 3, len(pairs))
@@ -310,7 +314,7 @@ class _Problem:
                              np.ravel(planes0[0], order="F"), planes0[1]])
         solver = ca.nlpsol("opti", "ipopt", {"x": x, "f": self.cost, "g": g}, {
             "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-            "ipopt.max_iter": self.opts.max_iter, "ipopt.tol": self.opts.tol,
+            "ipopt.max_iter": max_iter, "ipopt.tol": self.opts.tol,
             "ipopt.constr_viol_tol": 1e-9, "ipopt.mu_strategy": "adaptive",
         })
         sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
@@ -356,6 +360,43 @@ def _close_pairs(ends: np.ndarray, n: int, threshold: float) -> set[tuple[int, i
     return out
 
 
+def _run_start(problem: _Problem, topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray,
+               opts: SolverOptions, rim: float, radius: float, max_iter: int):
+    """One start of the multi-start: bowl of rim tilt ``rim`` (deg), solve with pair activation rounds, verify."""
+    t0 = time.perf_counter()
+    threshold = 2 * params.r + opts.pair_margin
+    fold = rim / radius
+    alpha = fold_angles(topo, np.radians(fold))
+    yaw = task_yaw(topo, wrenches) if opts.free_yaw else 0.0
+    pos, rot = kin.module_frames(topo, alpha, params.l_c, yaw)
+    v = least_squares_inputs(kin.allocation_matrix(pos, rot, params), wrenches, params.u_max).T / params.u_max
+    ends = problem.endpoints(alpha, yaw)
+    pairs = _close_pairs(ends, topo.n, threshold)
+    iters, status = 0, "not solved"
+    # unknowns: angles, yaw, inputs, lifted frames (R, p per module) and the centroid
+    n_var = (topo.n + 1) + int(opts.free_yaw) + 4 * topo.n * len(wrenches) + 12 * topo.n + 3
+    if problem.g_eq.shape[0] > n_var:
+        # More equalities than unknowns (one module, several distinct wrenches): Ipopt refuses such
+        # problems; the least-squares start is verified instead and is reported infeasible unless it fits.
+        pairs, status, rounds = set(), "Not_Enough_Degrees_Of_Freedom", 0
+    else:
+        rounds = opts.max_rounds
+    for _ in range(rounds):
+        ordered = sorted(pairs)
+        alpha, yaw, v, status, it = problem.solve(alpha, yaw, v, ordered, _planes(ends, ordered, params.r), max_iter)
+        iters += it
+        ends = problem.endpoints(alpha, yaw)
+        new = _close_pairs(ends, topo.n, 2 * params.r + 0.5 * opts.pair_margin) - pairs
+        if not new:
+            break
+        pairs |= new
+    u = np.clip(v.T * params.u_max, 0.0, params.u_max)
+    ver = verify(topo, params, alpha, yaw, u, wrenches)
+    cost = float(np.sum(weights * np.sum(u * u, axis=1)))
+    report = StartReport(rim, fold, status, ver.feasible, cost, iters, time.perf_counter() - t0)
+    return (ver.feasible, -cost, alpha, yaw, u, status, iters, ver, len(pairs)), report
+
+
 def lattice_radius(topo: Topology) -> float:
     """Largest distance of a module from the centroid, lattice units, at least 1/2."""
     cells = np.asarray(topo.cells, dtype=float)
@@ -371,44 +412,17 @@ def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights
     weights = np.ones(len(wrenches)) if weights is None else np.asarray(weights, dtype=float)
     t_start = time.perf_counter()
     problem = _Problem(topo, params, wrenches, weights, opts)
-    threshold = 2 * params.r + opts.pair_margin
     best: tuple | None = None
     reports: list[StartReport] = []
-    for rim in opts.rim_tilts_deg:
-        t0 = time.perf_counter()
-        fold = rim / radius
-        alpha = fold_angles(topo, np.radians(fold))
-        yaw = task_yaw(topo, wrenches) if opts.free_yaw else 0.0
-        pos, rot = kin.module_frames(topo, alpha, params.l_c, yaw)
-        v = least_squares_inputs(kin.allocation_matrix(pos, rot, params), wrenches, params.u_max).T / params.u_max
-        ends = problem.endpoints(alpha, yaw)
-        pairs = _close_pairs(ends, topo.n, threshold)
-        iters, status = 0, "not solved"
-        # unknowns: angles, yaw, inputs, lifted frames (R, p per module) and the centroid
-        n_var = (topo.n + 1) + int(opts.free_yaw) + 4 * topo.n * len(wrenches) + 12 * topo.n + 3
-        if problem.g_eq.shape[0] > n_var:
-            # More equalities than unknowns (one module, several distinct wrenches): Ipopt refuses such
-            # problems; the least-squares start is verified instead and is reported infeasible unless it fits.
-            pairs, status, rounds = set(), "Not_Enough_Degrees_Of_Freedom", 0
-        else:
-            rounds = opts.max_rounds
-        for _ in range(rounds):
-            ordered = sorted(pairs)
-            alpha, yaw, v, status, it = problem.solve(alpha, yaw, v, ordered, _planes(ends, ordered, params.r))
-            iters += it
-            ends = problem.endpoints(alpha, yaw)
-            new = _close_pairs(ends, topo.n, 2 * params.r + 0.5 * opts.pair_margin) - pairs
-            if not new:
+    for max_iter in (min(opts.first_pass_max_iter, opts.max_iter), opts.max_iter):
+        for rim in opts.rim_tilts_deg:
+            candidate, report = _run_start(problem, topo, params, wrenches, weights, opts, rim, radius, max_iter)
+            reports.append(report)
+            if best is None or (candidate[0], candidate[1]) > (best[0], best[1]):
+                best = candidate
+            if sum(r.feasible for r in reports) >= opts.max_starts_feasible:
                 break
-            pairs |= new
-        u = np.clip(v.T * params.u_max, 0.0, params.u_max)
-        ver = verify(topo, params, alpha, yaw, u, wrenches)
-        cost = float(np.sum(weights * np.sum(u * u, axis=1)))
-        reports.append(StartReport(rim, fold, status, ver.feasible, cost, iters, time.perf_counter() - t0))
-        candidate = (ver.feasible, -cost, alpha, yaw, u, status, iters, ver, len(pairs))
-        if best is None or (candidate[0], candidate[1]) > (best[0], best[1]):
-            best = candidate
-        if sum(r.feasible for r in reports) >= opts.max_starts_feasible:
+        if any(r.feasible for r in reports) or max_iter >= opts.max_iter:
             break
     assert best is not None
     feasible, neg_cost, alpha, yaw, u, status, iters, ver, n_pairs = best
