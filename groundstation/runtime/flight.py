@@ -107,6 +107,7 @@ class Flight:
         self._lo = np.array(self.policy.geofence_lower)
         self._hi = np.array(self.policy.geofence_upper)
         self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
+        self._stats: LoopStats | None = None
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _event(self, t: float, level: str, text: str) -> None:
@@ -123,6 +124,7 @@ class Flight:
     def _emergency(self, t: float, why: str) -> None:
         self.backend.emergency_stop()
         self._last_u = np.zeros_like(self._last_u)
+        self._log_motors_off(t)
         self.reason = why
         self._set_phase(t, "emergency", why)
 
@@ -194,9 +196,16 @@ class Flight:
         self._record(t, state, sp, out, u, age)
         return True
 
+    def _log_motors_off(self, t: float) -> None:
+        if self.log is not None:
+            u = self.backend.telemetry().motors
+            self.log.record("/motors", {"t": t, "modules": u.reshape(-1, 4) / self.model.u_max, "off": True},
+                            self._t_wall0 + t)
+
     def _finish(self, t: float) -> None:
         self.backend.emergency_stop()  # landed: motors off
         self._last_u = np.zeros_like(self._last_u)
+        self._log_motors_off(t)
         self._set_phase(t, "done", "landed")
 
     def _record(self, t, state, sp, out, u, age) -> None:
@@ -218,14 +227,24 @@ class Flight:
                                                   "phase": self.phase}, tw)
             self.log.record("/control/wrench", {"t": t, "force": out.wrench[:3], "torque": out.wrench[3:]}, tw)
             self.log.record("/motors", {"t": t, "modules": u.reshape(-1, 4) / self.model.u_max}, tw)
+            st = self._stats
+            if st is not None and st.start_error:
+                self.log.record("/loop/period", {"t": t, "start_error_s": st.start_error[-1],
+                                                 "compute_s": st.compute[-1] if st.compute else 0.0,
+                                                 "overruns": st.overruns}, tw)
+            if len(self.rec.t) % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
+                tel = self.backend.telemetry()
+                self.log.record("/backend/telemetry", {"t": t, "link_ok": tel.link_ok, "motors": tel.motors,
+                                                       "battery_v": tel.battery_v, "gyro": tel.gyro}, tw)
         if self.on_status is not None:
             self.on_status(t, self.phase, age, float(u.max() / self.model.u_max))
 
     # -- run --------------------------------------------------------------------------------------------------------
     def run(self, clock: Clock, rate_hz: float) -> LoopStats:
         """Fly on ``clock`` at ``rate_hz``; the motors are off when this returns, whatever happened."""
+        self._stats = LoopStats(1.0 / rate_hz)
         try:
-            stats = run_fixed_rate(self.step, rate_hz, clock)
+            stats = run_fixed_rate(self.step, rate_hz, clock, stats=self._stats)
         except BaseException as exc:
             self._emergency(self.rec.t[-1] if self.rec.t else 0.0, f"{type(exc).__name__}: {exc}")
             raise

@@ -74,13 +74,14 @@ class LoopStats:
 
 
 def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Clock,
-                   max_periods: int | None = None) -> LoopStats:
+                   max_periods: int | None = None, stats: LoopStats | None = None) -> LoopStats:
     """Call ``step(k, t)`` at ``rate_hz`` (``t`` seconds since the start, on ``clock``) until it returns False.
 
-    The step for period k is scheduled at ``t0 + k / rate_hz``.
+    The step for period k is scheduled at ``t0 + k / rate_hz``. Pass ``stats`` to let the step read the timing
+    of the periods before it (e.g. to log it).
     """
     period = 1.0 / rate_hz
-    stats = LoopStats(period)
+    stats = stats if stats is not None else LoopStats(period)
     t0 = clock.now()
     k = 0
     while max_periods is None or k < max_periods:

@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
@@ -48,7 +49,7 @@ def test_short_figure8_end_to_end(tmp_path):
     assert res.metrics["pos_rmse_m"] < 0.03 and res.metrics["max_roll_error_deg"] < 1.0
     counts, meta, logs, motors = read_log(log)
     for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control/setpoint", "/control/wrench",
-                  "/motors", "/log", "/loop/timing", "/flight/summary"):
+                  "/motors", "/log", "/loop/timing", "/loop/period", "/backend/telemetry", "/flight/summary"):
         assert counts.get(topic, 0) > 0, topic
     assert counts["/mocap/assembly"] > 100 * 8  # ~100 Hz over the whole flight
     assert "config" in meta and "code_version" in meta and "assembly" in meta
@@ -77,11 +78,12 @@ def test_failsafes_stop_or_land_and_are_logged(tmp_path, fault, expect_phase, re
     counts, meta, logs, motors = read_log(log)
     texts = [d.decode(errors="ignore") for _, d in logs]
     assert any(reason in t for t in texts)
+    # the log ends with the motors commanded off, and nothing is commanded after that
+    assert motors[-1][1]["off"] and np.max(motors[-1][1]["modules"]) == 0.0
     if expect_phase == "emergency":
-        # the last logged command is before the fault; nothing non-zero is commanded after it
-        t_events = [t for t, d in logs if reason.encode() in d]
-        after = [m for t, m in motors if t > t_events[0]]
-        assert after == []
+        t_event = [t for t, d in logs if reason.encode() in d][0]
+        after = [m for t, m in motors if t > t_event]
+        assert after == [] and motors[-1][0] == t_event  # stopped in the period the fault was seen
 
 
 def test_operator_land_request(tmp_path):
