@@ -3,8 +3,9 @@
 Protobuf channels use Foxglove's schemas so Foxglove shows the flight in 3D without set-up: mocap poses as
 received (``/mocap/<body>``, the Zenoh payload bytes unchanged), the state estimate (``/state/pose``),
 transforms world -> body (``/tf``), the assembly as a scene (``/scene``), events and errors (``/log``).
-Numeric records (setpoint, desired wrench, motor commands, loop timing, telemetry, flight state) go on JSON
-channels with a JSON schema, which Foxglove plots directly.
+Numeric records go on JSON channels with a JSON schema, which Foxglove plots directly: ``/control`` (one per
+period: flight state, setpoint, desired wrench, per-module motor commands, loop timing), ``/backend/telemetry``,
+``/loop/timing`` (summary), ``/flight/summary``.
 
 Robustness: chunks are small (32 KiB) and the file is flushed about once a second, so after SIGKILL every
 complete chunk is on disk; :func:`recover` reads such a file with a streaming reader and writes a finalized

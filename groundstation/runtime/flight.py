@@ -199,8 +199,8 @@ class Flight:
     def _log_motors_off(self, t: float) -> None:
         if self.log is not None:
             u = self.backend.telemetry().motors
-            self.log.record("/motors", {"t": t, "modules": u.reshape(-1, 4) / self.model.u_max, "off": True},
-                            self._t_wall0 + t)
+            self.log.record("/control", {"t": t, "phase": self.phase, "motors": u.reshape(-1, 4) / self.model.u_max,
+                                         "motors_off": True}, self._t_wall0 + t)
 
     def _finish(self, t: float) -> None:
         self.backend.emergency_stop()  # landed: motors off
@@ -222,16 +222,15 @@ class Flight:
         if self.log is not None:
             tw = self._t_wall0 + t
             self.log.pose("/state/pose", state.position, state.rotation, tw)
-            # Arrays are fresh each period, so no copies are needed; the writer thread converts them.
-            self.log.record("/control/setpoint", {"t": t, "position": sp.position, "velocity": sp.velocity,
-                                                  "phase": self.phase}, tw)
-            self.log.record("/control/wrench", {"t": t, "force": out.wrench[:3], "torque": out.wrench[3:]}, tw)
-            self.log.record("/motors", {"t": t, "modules": u.reshape(-1, 4) / self.model.u_max}, tw)
+            # One record per period (fewer, larger messages keep the writer thread's share of the GIL small); the
+            # arrays are fresh each period, so no copies are needed, and the writer thread converts them.
             st = self._stats
-            if st is not None and st.start_error:
-                self.log.record("/loop/period", {"t": t, "start_error_s": st.start_error[-1],
-                                                 "compute_s": st.compute[-1] if st.compute else 0.0,
-                                                 "overruns": st.overruns}, tw)
+            timing = {"start_error_s": st.start_error[-1], "compute_s": st.compute[-1] if st.compute else 0.0,
+                      "overruns": st.overruns} if st is not None and st.start_error else {}
+            self.log.record("/control", {"t": t, "phase": self.phase,
+                                         "setpoint": {"position": sp.position, "velocity": sp.velocity},
+                                         "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
+                                         "motors": u.reshape(-1, 4) / self.model.u_max, "loop": timing}, tw)
             if len(self.rec.t) % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
                 tel = self.backend.telemetry()
                 self.log.record("/backend/telemetry", {"t": t, "link_ok": tel.link_ok, "motors": tel.motors,

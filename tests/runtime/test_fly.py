@@ -25,7 +25,7 @@ def read_log(path):
     with open(path, "rb") as fh:
         logs = [(m.log_time, m.data) for _, ch, m in make_reader(fh).iter_messages(topics=["/log"])]
     with open(path, "rb") as fh:
-        motors = [(m.log_time, json.loads(m.data)) for _, ch, m in make_reader(fh).iter_messages(topics=["/motors"])]
+        motors = [(m.log_time, json.loads(m.data)) for _, ch, m in make_reader(fh).iter_messages(topics=["/control"])]
     return counts, meta, logs, motors
 
 
@@ -48,8 +48,8 @@ def test_short_figure8_end_to_end(tmp_path):
     assert res.phase == "done" and res.reason == ""
     assert res.metrics["pos_rmse_m"] < 0.03 and res.metrics["max_roll_error_deg"] < 1.0
     counts, meta, logs, motors = read_log(log)
-    for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control/setpoint", "/control/wrench",
-                  "/motors", "/log", "/loop/timing", "/loop/period", "/backend/telemetry", "/flight/summary"):
+    for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control", "/log", "/loop/timing",
+                  "/backend/telemetry", "/flight/summary"):
         assert counts.get(topic, 0) > 0, topic
     assert counts["/mocap/assembly"] > 100 * 8  # ~100 Hz over the whole flight
     assert "config" in meta and "code_version" in meta and "assembly" in meta
@@ -79,7 +79,8 @@ def test_failsafes_stop_or_land_and_are_logged(tmp_path, fault, expect_phase, re
     texts = [d.decode(errors="ignore") for _, d in logs]
     assert any(reason in t for t in texts)
     # the log ends with the motors commanded off, and nothing is commanded after that
-    assert motors[-1][1]["off"] and np.max(motors[-1][1]["modules"]) == 0.0
+    assert motors[-1][1]["motors_off"] and np.max(motors[-1][1]["motors"]) == 0.0
+    assert {"setpoint", "wrench", "motors", "loop"} <= set(motors[len(motors) // 2][1])
     if expect_phase == "emergency":
         t_event = [t for t, d in logs if reason.encode() in d][0]
         after = [m for t, m in motors if t > t_event]
