@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.quiet import quiet_stdout
+from sim.quiet import quiet_stderr
 
-with quiet_stdout():  # pybullet prints its build date on stdout at import, which would corrupt --json output
+with quiet_stderr():  # pybullet prints its build date on stderr at import: noise in front of operators
     import pybullet as pb
 
 from groundstation.assembly.assembly import Assembly

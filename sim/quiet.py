@@ -1,4 +1,5 @@
-"""Silence C-level writes to stdout (file descriptor 1) for the duration of a block."""
+"""Silence C-level writes to stderr for the duration of a block (pybullet's import banner; C's stderr is
+unbuffered, so nothing is left to flush afterwards)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ from contextlib import contextmanager
 
 
 @contextmanager
-def quiet_stdout():
-    sys.stdout.flush()
+def quiet_stderr():
+    sys.stderr.flush()
     try:
-        fd = sys.stdout.fileno()
-    except (AttributeError, OSError, ValueError):  # no real stdout (e.g. captured by a test runner)
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # no real stderr (e.g. captured by a test runner)
         yield
         return
     saved = os.dup(fd)
