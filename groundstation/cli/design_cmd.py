@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 
@@ -65,8 +66,7 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     params = load_module_params(modules) if modules else ModuleParams()
     task = load_task(tasks)
     if no_modification:
-        object.__setattr__(task, "add_gravity", False)
-        object.__setattr__(task, "add_hover", False)
+        task = dataclasses.replace(task, add_gravity=False, add_hover=False)
     sampling = SamplingPolicy(sample, sigma, scheme, seed) if sample is not None else None
     cand = None
     if candidates:

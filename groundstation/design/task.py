@@ -17,6 +17,7 @@ A task file (``configs/tasks/*.toml``)::
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Literal
 
@@ -74,9 +75,7 @@ class Task:
 def load_task(path: str | Path) -> Task:
     """Load a task file; errors name the file and the key (e.g. ``wrench.1.force``)."""
     task = config.load(Task, path)
-    if not task.name:
-        object.__setattr__(task, "name", Path(path).stem)
-    return task
+    return task if task.name else dataclasses.replace(task, name=Path(path).stem)
 
 
 def random_task(seed: int, count: int = 10) -> Task:

@@ -7,6 +7,7 @@ Pre-flight checks (hover feasibility from the allocation, the reference inside t
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Literal
@@ -111,8 +112,7 @@ def record_of(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats 
     metrics = flight_metrics(record, planned_s, flight.assembly.params.u_max)
     if stats is not None:
         metrics["loop"] = stats.summary()
-    object.__setattr__(record, "metrics", metrics)
-    return record
+    return dataclasses.replace(record, metrics=metrics)
 
 
 def flight_metrics(rec: FlightRecord, planned_s: float, u_max: float) -> dict:

@@ -101,7 +101,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     if duration is not None:
         if not duration > 0:
             raise ConfigError(f"duration must be positive, got {duration}")
-        cfg = FlightConfig(**{**_as_dict(cfg), "trajectory": {**_as_dict(cfg.trajectory), "duration": duration}})
+        cfg = FlightConfig(**{**asdict(cfg), "trajectory": {**asdict(cfg.trajectory), "duration": duration}})
     try:
         assembly, _ = load_assembly(base / cfg.assembly)
     except ConfigError as exc:
@@ -117,8 +117,8 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     requests = requests or Requests()
     t = cfg.trajectory
     track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
-    gains = Gains(**_as_dict(cfg.gains))
-    policy = FailsafePolicy(**_as_dict(cfg.failsafe))
+    gains = Gains(**asdict(cfg.gains))
+    policy = FailsafePolicy(**asdict(cfg.failsafe))
 
     from sim.pybullet_backend import PyBulletBackend, SimConfig, resting_height
     from sim.virtual_mocap import VirtualMocap
@@ -155,7 +155,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         stack.callback(backend.close)
         stack.callback(backend.emergency_stop)  # runs first on the way out: motors off whatever happened
 
-        log = FlightLog(log_file, {"config": json.dumps(_as_dict(cfg)), "config_path": src,
+        log = FlightLog(log_file, {"config": json.dumps(asdict(cfg)), "config_path": src,
                                    "code_version": code_version(),
                                    "assembly": json.dumps(assembly_record(assembly))})
         stack.callback(log.close)
@@ -240,6 +240,3 @@ def _install_signals(requests: Requests):
 
     return restore
 
-
-def _as_dict(obj) -> dict:
-    return asdict(obj)
