@@ -24,6 +24,9 @@ class BackendSection:
     physics_hz: float = Field(240.0, gt=0)
     motor_time_constant: float = Field(0.02, ge=0)
     """s"""
+    modules: tuple[str, ...] = ()
+    """One link per module in assembly order (e.g. Crazyflie URIs ``radio://0/80/2M/E7E7E7E701``); optional for
+    the simulator, but when given its length must match the assembly."""
 
 
 @dataclass(frozen=True, config=_STRICT)

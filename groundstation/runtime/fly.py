@@ -106,6 +106,9 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         assembly, _ = load_assembly(base / cfg.assembly)
     except ConfigError as exc:
         raise ConfigError(f"{exc}", path=src, key="assembly") from None
+    if cfg.backend.modules and len(cfg.backend.modules) != assembly.n:
+        raise ConfigError(f"{len(cfg.backend.modules)} module links for an assembly of {assembly.n} modules",
+                          path=src, key="backend.modules")
     stamp_name = time.strftime("flight-%Y%m%d-%H%M%S.mcap")
     log_file = Path(log_path) if log_path else (base / cfg.log_dir).resolve() / stamp_name
     try:

@@ -101,6 +101,8 @@ def test_bad_inputs_never_arm(tmp_path):
         fly(config_with(tmp_path, **{"rate_hz = 250": "rate_hz = 250\nspeed = 3"}))
     with pytest.raises(ConfigError, match="assembly"):
         fly(config_with(tmp_path, **{str(ROOT / "configs/assemblies/toy_v2.json"): "/nonexistent.json"}))
+    with pytest.raises(ConfigError, match="backend.modules"):
+        fly(config_with(tmp_path, **{"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nmodules = ["a"]'}))
     with pytest.raises(ConfigError, match="backend.kind"):
         fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "crazyflie"'}))
     with pytest.raises(ConfigError, match="log_dir"):

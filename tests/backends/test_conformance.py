@@ -1,0 +1,74 @@
+"""One conformance suite for every backend: the rules the flight loop relies on."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from groundstation.assembly.assembly_file import load_assembly
+from groundstation.backends.base import Backend
+from groundstation.backends.fake import FakeBackend
+
+ROOT = Path(__file__).resolve().parents[2]
+ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+U_MAX = ASM.params.u_max
+
+
+def make_fake():
+    return FakeBackend(ASM.n, U_MAX)
+
+
+def make_sim():
+    from sim.pybullet_backend import PyBulletBackend
+
+    return PyBulletBackend(ASM)
+
+
+@pytest.fixture(params=[make_fake, make_sim], ids=["fake", "pybullet"])
+def backend(request):
+    be = request.param()
+    with be:
+        yield be
+
+
+def applied(be) -> np.ndarray:
+    if hasattr(be, "advance_to"):
+        be.advance_to(be.time + 0.5)  # let the motor lag settle
+    return be.telemetry().motors
+
+
+def test_protocol_and_preflight(backend):
+    assert isinstance(backend, Backend)
+    assert backend.preflight().ok and backend.telemetry().link_ok
+
+
+def test_commands_ignored_until_armed(backend):
+    backend.send(np.full(8, 0.5 * U_MAX))
+    assert applied(backend).max() == 0.0
+
+
+def test_commands_bounded_and_nan_stops_the_rotor(backend):
+    backend.arm()
+    cmd = np.array([-1.0, 2 * U_MAX, np.nan, np.inf, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX])
+    backend.send(cmd)
+    u = applied(backend)
+    assert u.min() >= 0.0 and u.max() <= U_MAX
+    np.testing.assert_allclose(u[[0, 2, 3]], 0.0, atol=1e-6 * U_MAX)
+    np.testing.assert_allclose(u[[1, 7]], U_MAX, rtol=1e-3)
+    np.testing.assert_allclose(u[4:7], [0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX], rtol=1e-3)
+
+
+def test_emergency_stop_zeroes_at_once_and_disarms(backend):
+    backend.arm()
+    backend.send(np.full(8, 0.5 * U_MAX))
+    applied(backend)
+    backend.emergency_stop()
+    assert backend.telemetry().motors.max() == 0.0  # immediately, not after a lag
+    backend.send(np.full(8, 0.5 * U_MAX))
+    assert applied(backend).max() == 0.0  # disarmed
+
+
+def test_wrong_command_size_is_an_error(backend):
+    backend.arm()
+    with pytest.raises(ValueError):
+        backend.send(np.zeros(5))
