@@ -26,7 +26,7 @@ EXIT_INTERRUPTED = 130
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="groundstation")
 def cli() -> None:
-    """Design, fly and analyse modular aerial systems (downwash-aware configuration optimization)."""
+    """Design, simulate and fly modular aerial systems (downwash-aware configuration optimization)."""
 
 
 cli.add_command(enumerate_command)
