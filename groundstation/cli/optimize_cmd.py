@@ -25,8 +25,9 @@ EXIT_INFEASIBLE = 1
 @click.option("--topology", "code", required=True, help="Topology code, e.g. oE or oS(W)E (see 'enumerate --out').")
 @click.option("--modules", "modules", default=None, type=click.Path(dir_okay=False),
               help="Module parameter file (default: the paper's Table II).")
-@click.option("--starts", "starts", default="10,30,20,5", show_default=True,
-              help="Multi-start: tilt of the outermost module of each starting bowl, degrees (0 = flat start).")
+@click.option("--starts", "starts", default=None,
+              help="Multi-start: tilt of the outermost module of each starting bowl, degrees, e.g. 20,10,30,5 "
+                   "(0 = flat start). Default: chosen by size.")
 @click.option("--fixed-yaw", is_flag=True, help="Do not optimize the body yaw (the paper's formulation).")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the assembly file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object.")
@@ -39,7 +40,7 @@ def optimize_command(tasks: str, code: str, modules: str | None, starts: str, fi
     except TopologyError as exc:
         raise UsageError(f"--topology: {exc}") from None
     try:
-        rims = tuple(float(f) for f in starts.split(","))
+        rims = tuple(float(f) for f in starts.split(",")) if starts else None
     except ValueError:
         raise UsageError(f"--starts: expected comma-separated degrees, got {starts!r}") from None
     params = load_module_params(modules) if modules else ModuleParams()
