@@ -25,7 +25,7 @@ with quiet_stderr():  # pybullet prints its build date on stderr at import: nois
     import pybullet as pb
 
 from groundstation.assembly.assembly import Assembly
-from groundstation.backends.base import PreflightReport, Telemetry
+from groundstation.backends.base import PreflightReport, Telemetry, bounded_command
 from groundstation.control.state import RigidState
 from groundstation.design.task import GRAVITY
 from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
@@ -142,8 +142,7 @@ class PyBulletBackend:
         if not self._armed:
             self._u_cmd = np.zeros_like(u)
             return
-        # NaN commands a stopped rotor; bounds are enforced here, at the backend's edge, whatever the caller did.
-        self._u_cmd = np.clip(np.where(np.isfinite(u), u, 0.0), 0.0, self.assembly.params.u_max)
+        self._u_cmd = bounded_command(u, self.assembly.params.u_max)
 
     def telemetry(self) -> Telemetry:
         gyro = self._state.omega + self._rng.normal(0.0, self.config.gyro_noise, 3)

@@ -23,11 +23,6 @@ DIRECTIONS: np.ndarray = np.array([[0, 1], [-1, 0], [0, -1], [1, 0]], dtype=np.i
 DIRECTION_LETTERS = "NWSE"
 
 
-def opposite(connector_index: int) -> int:
-    """Index of the connector facing ``connector_index`` across a lattice bond (0..3)."""
-    return (connector_index + 2) % 4
-
-
 def connector_between(a: tuple[int, int], b: tuple[int, int]) -> int:
     """Connector index (0..3) on the module at cell ``a`` that faces the adjacent cell ``b``."""
     step = (b[0] - a[0], b[1] - a[1])

@@ -126,10 +126,6 @@ class Topology:
                     queue.append(w)
         return order
 
-    def neighbours(self, i: int) -> tuple[int, ...]:
-        """Modules connected to module ``i``, ordered by the connector they use on ``i`` (1..4)."""
-        return self._adjacency[i]
-
     def connector(self, i: int, j: int) -> int:
         """Connector number (1..4) on module ``i`` used by its connection to module ``j``."""
         return connector_between(self.cells[i], self.cells[j]) + 1

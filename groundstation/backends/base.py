@@ -34,6 +34,14 @@ class Telemetry:
     pose; differentiating it for the rate is too late and too noisy for the attitude loop."""
 
 
+def bounded_command(u: np.ndarray, u_max: float) -> np.ndarray:
+    """The rotor inputs a backend may apply: NaN/inf stop that rotor, everything clipped to ``[0, u_max]``.
+
+    Every backend applies this at its edge, whatever the caller computed.
+    """
+    return np.clip(np.where(np.isfinite(u), u, 0.0), 0.0, u_max)
+
+
 @runtime_checkable
 class Backend(Protocol):
     def connect(self) -> None: ...

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from groundstation.backends.base import PreflightReport, Telemetry
+from groundstation.backends.base import PreflightReport, Telemetry, bounded_command
 
 
 class FakeBackend:
@@ -33,7 +33,7 @@ class FakeBackend:
         u = np.asarray(u, dtype=float)
         if u.shape != self._u.shape:
             raise ValueError(f"expected {self._u.shape[0]} rotor inputs, got {u.shape}")
-        self._u = np.clip(np.where(np.isfinite(u), u, 0.0), 0.0, self.u_max) if self._armed else np.zeros_like(u)
+        self._u = bounded_command(u, self.u_max) if self._armed else np.zeros_like(u)
         self.commands.append(self._u.copy())
 
     def telemetry(self) -> Telemetry:

@@ -64,6 +64,3 @@ class ControlModel:
                    wrench_scale=_frozen(s), pinv=_frozen(pinv), u_max=p.u_max, actuation=actuation,
                    null_force=_frozen(null_force))
 
-    @property
-    def n_rotors(self) -> int:
-        return self.allocation.shape[1]

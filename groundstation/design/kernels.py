@@ -245,22 +245,3 @@ def materialize_children(cells_x, cells_y, parent, src, mats):
             out_p[u, k] = parent[m, k] if k < n else i
     return out_x, out_y, out_p
 
-
-@njit(cache=True, nogil=True)
-def free_connector_counts(cells_x, cells_y):
-    """Number of free connectors (facing an empty cell) of each configuration: the paper's code ``1`` entries."""
-    m_count, n = cells_x.shape
-    out = np.zeros(m_count, dtype=np.int64)
-    grid = np.zeros((n + 2, n + 2), dtype=np.bool_)
-    for m in range(m_count):
-        for i in range(n):
-            grid[cells_x[m, i] + 1, cells_y[m, i] + 1] = True
-        c = 0
-        for i in range(n):
-            for d in range(4):
-                if not grid[cells_x[m, i] + _DX[d] + 1, cells_y[m, i] + _DY[d] + 1]:
-                    c += 1
-        out[m] = c
-        for i in range(n):
-            grid[cells_x[m, i] + 1, cells_y[m, i] + 1] = False
-    return out

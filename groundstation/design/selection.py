@@ -183,7 +183,7 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
         rows.extend(r for r, _ in level)
         feasible = [(r, rec) for r, rec in level if r.feasible and rec is not None]
         if feasible:
-            best_row, best_record = min(feasible, key=lambda x: (x[0].cost, x[0].code))
+            _, best_record = min(feasible, key=lambda x: (x[0].cost, x[0].code))
             return Selection(best_record, n, tuple(rows))
     return Selection(None, None, tuple(rows))
 

@@ -27,12 +27,11 @@ from pydantic.dataclasses import dataclass
 
 from groundstation import config
 from groundstation.assembly.module import ModuleParams
-from groundstation.errors import ConfigError
 
 GRAVITY = 9.81
 """Standard gravity used throughout, m/s^2."""
 
-_STRICT = ConfigDict(extra="forbid")
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -100,9 +99,3 @@ def task_to_toml(task: Task) -> str:
                   f"torque = [{', '.join(repr(float(v)) for v in w.torque)}]", f"weight = {float(w.weight)!r}"]
     return "\n".join(lines) + "\n"
 
-
-def validate_task_for(task: Task, path: str | None = None) -> None:
-    """Reject wrench sets that are not finite (NaN or inf slip through TOML)."""
-    for k, w in enumerate(task.wrench):
-        if not (np.all(np.isfinite(w.force)) and np.all(np.isfinite(w.torque))):
-            raise ConfigError("wrench must be finite", path=path, key=f"wrench.{k}")

@@ -14,7 +14,7 @@ from pydantic.dataclasses import dataclass
 
 from groundstation import config
 
-_STRICT = ConfigDict(extra="forbid")
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 @dataclass(frozen=True, config=_STRICT)

@@ -43,6 +43,7 @@ def test_random_sets_match_generator_and_ranges(seed):
     ('[[wrench]]\nforce = [0, 1]\n', "wrench.0.force"),
     ('[[wrench]]\nforce = [0, 1, 0]\nspeed = 3\n', "wrench.0.speed"),
     ('units = "lbf"\n[[wrench]]\nforce = [0, 1, 0]\n', "units"),
+    ('[[wrench]]\nforce = [0, nan, 0]\n', "wrench.0.force"),
 ])
 def test_malformed_task_names_file_and_key(tmp_path, text, key):
     f = tmp_path / "t.toml"
