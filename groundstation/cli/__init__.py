@@ -14,7 +14,7 @@ import click
 from groundstation import __version__
 from groundstation.cli.design_cmd import design_command
 from groundstation.cli.enumerate_cmd import enumerate_command
-from groundstation.cli.fly_cmd import fly_command, log_group, mocap_bridge_command
+from groundstation.cli.fly_cmd import fly_command, log_group, mocap_bridge_command, sim_peer_command
 from groundstation.cli.optimize_cmd import optimize_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import GroundstationError
@@ -36,6 +36,7 @@ cli.add_command(simulate_command)
 cli.add_command(fly_command)
 cli.add_command(log_group)
 cli.add_command(mocap_bridge_command)
+cli.add_command(sim_peer_command)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -11,6 +11,7 @@ from rich.live import Live
 from rich.table import Table
 
 from groundstation.cli.common import stderr_console, writable_output
+from groundstation.errors import UsageError
 from groundstation.flightlog.mcap_log import recover
 from groundstation.runtime.flight import Requests
 
@@ -117,4 +118,45 @@ def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key
     stats = run_bridge(system, host, names, endpoint, key_prefix, y_up=y_up, mock_bodies=mock_bodies,
                        duration=duration)
     click.echo(json.dumps({"frames": stats.frames, "published": stats.published, "missing": stats.missing}))
+    return 0
+
+
+@click.command("sim-peer")
+@click.argument("assembly", type=click.Path(dir_okay=False))
+@click.option("--port", type=int, default=19850, show_default=True,
+              help="UDP port of module 0; module i listens on port + i (fly with udp://127.0.0.1:PORT+i).")
+@click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
+              help="Zenoh endpoint the virtual mocap listens on.")
+@click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
+@click.option("--physics-hz", type=float, default=240.0, show_default=True)
+@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+def sim_peer_command(assembly: str, port: int, endpoint: str, body: str, physics_hz: float,
+                     duration: float | None) -> int:
+    """Simulate an assembly's Crazyflie modules on loopback UDP (CRTP) with its pose on Zenoh.
+
+    Fly it with a config whose backend is crazyflie and whose modules are udp://127.0.0.1:PORT, PORT+1, ...
+    SIGINT/SIGTERM stop the simulation.
+    """
+    import signal
+
+    from groundstation.assembly.assembly_file import load_assembly
+    from groundstation.mocap.zenoh_link import pose_key
+    from sim.crazyflie_peer import PeerConfig, SimulatedModules
+
+    asm, _ = load_assembly(assembly)
+    peer = SimulatedModules(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
+                                            physics_hz=physics_hz))
+    try:
+        peer.open()
+    except OSError as exc:
+        raise UsageError(str(exc)) from None
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: peer.stop_event.set())
+    uris = ", ".join(f"udp://{peer.config.host}:{port + i}" for i in range(asm.n))
+    click.echo(f"simulating {asm.n} modules on {uris}; pose on {endpoint}", err=True)
+    try:
+        peer.run(duration)
+    finally:
+        peer.close()
+    click.echo(json.dumps({"packets": peer.packets, "simulated_s": peer.sim.time}))
     return 0

@@ -37,6 +37,8 @@ from groundstation.rotations import matrix_to_quat
 
 CHUNK_BYTES = 32 * 1024
 FLUSH_S = 1.0
+HOLD_MAX_S = 0.05
+"""Longest the writer waits while held, s (bounds the backlog if a holder forgets to release)."""
 _JSON_SCHEMA = json.dumps({"type": "object"}).encode()
 LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
 
@@ -66,6 +68,8 @@ class FlightLog:
         self._closed = False
         self.dropped = 0
         self.error: BaseException | None = None
+        self._may_write = threading.Event()
+        self._may_write.set()
         self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
         self._thread.start()
 
@@ -115,6 +119,18 @@ class FlightLog:
             cube.color.r, cube.color.g, cube.color.b, cube.color.a = 0.1, 0.1, 0.1, 0.9
         self.protobuf("/scene", upd, t)
 
+    def hold(self) -> None:
+        """Ask the writer to pause between messages (while a control period computes); see :meth:`release`.
+
+        The writer is Python and needs the GIL: writing while the control loop computes stretches the loop's
+        compute time (measured at 500 Hz: the main cause of late periods). Held, it finishes the message in hand
+        and waits, at most ``HOLD_MAX_S``, so it can never starve.
+        """
+        self._may_write.clear()
+
+    def release(self) -> None:
+        self._may_write.set()
+
     def _put(self, item) -> None:
         if self._closed:
             self.dropped += 1
@@ -142,6 +158,7 @@ class FlightLog:
                     item = None
                 if item is not None and item[0] == "stop":
                     break
+                self._may_write.wait(HOLD_MAX_S)
                 if item is not None and item[0] == "pose":
                     self._pose_messages(item[1], *item[2], item[3])
                 elif item is not None:
@@ -165,6 +182,7 @@ class FlightLog:
         if self._closed:
             return
         self._closed = True
+        self.release()
         self._queue.put(("stop", None, None, 0.0))
         self._thread.join(timeout)
         self._writer.finish()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -86,8 +87,8 @@ class Flight:
 
     def __init__(self, assembly: Assembly, plan: FlightPlan, backend, pose: PoseSource, *, gains: Gains | None = None,
                  allocation: Literal["clip", "bounded"] = "clip", policy: FailsafePolicy | None = None,
-                 log=None, requests: Requests | None = None, advance_backend: bool = False,
-                 truth=None, on_status=None) -> None:
+                 log=None, requests: Requests | None = None,
+                 before_period: Callable[[float], None] | None = None, truth=None, on_status=None) -> None:
         self.assembly, self.plan, self.backend, self.pose = assembly, plan, backend, pose
         self.gains = gains or Gains()
         self.model = ControlModel.from_assembly(assembly)
@@ -95,7 +96,7 @@ class Flight:
         self.policy = policy or FailsafePolicy()
         self.log = log
         self.requests = requests or Requests()
-        self.advance_backend = advance_backend
+        self.before_period = before_period  # called with t first thing every period (advance a simulator)
         self.truth = truth  # optional callable returning the true state (simulation), recorded for metrics
         self.on_status = on_status
         self.phase = "preflight"
@@ -139,8 +140,8 @@ class Flight:
     def step(self, k: int, t: float) -> bool:
         if self.phase in ("done", "emergency"):
             return False
-        if self.advance_backend:
-            self.backend.advance_to(t)
+        if self.before_period is not None:
+            self.before_period(t)
         if k == 0:
             self.backend.arm()
             self._set_phase(t, "takeoff", "armed")
@@ -239,11 +240,21 @@ class Flight:
             self.on_status(t, self.phase, age, float(u.max() / self.model.u_max))
 
     # -- run --------------------------------------------------------------------------------------------------------
-    def run(self, clock: Clock, rate_hz: float) -> LoopStats:
-        """Fly on ``clock`` at ``rate_hz``; the motors are off when this returns, whatever happened."""
-        self._stats = LoopStats(1.0 / rate_hz)
+    def run(self, clock: Clock, rate_hz: float, realtime: bool = False) -> LoopStats:
+        """Fly on ``clock`` at ``rate_hz``; the motors are off when this returns, whatever happened.
+
+        ``realtime`` only records that the caller runs this thread under real-time scheduling."""
+        self._stats = LoopStats(1.0 / rate_hz, realtime=realtime)
+        step = self.step
+        if self.log is not None and hasattr(self.log, "hold"):
+            def step(k: int, t: float) -> bool:  # the log writer waits while a period computes (GIL)
+                self.log.hold()
+                try:
+                    return self.step(k, t)
+                finally:
+                    self.log.release()
         try:
-            stats = run_fixed_rate(self.step, rate_hz, clock, stats=self._stats)
+            stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats)
         except BaseException as exc:
             self._emergency(self.rec.t[-1] if self.rec.t else 0.0, f"{type(exc).__name__}: {exc}")
             raise

@@ -1,7 +1,9 @@
 """Flight configuration files (``configs/flights/*.toml``): everything ``groundstation fly`` needs.
 
 Paths (assembly, log directory) are relative to the config file. Unknown keys are errors that name the file and
-the key path. Only the simulated backend exists so far; ``crazyflie`` and ``mavlink`` are rejected by name.
+the key path. Backends: ``sim`` (PyBullet in this process, with a virtual mocap) and ``crazyflie`` (one cflib link
+per module: Crazyradio, or UDP to simulated modules from ``groundstation sim-peer``); ``mavlink`` is rejected by
+name.
 """
 
 from __future__ import annotations
@@ -19,14 +21,20 @@ _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 @dataclass(frozen=True, config=_STRICT)
 class BackendSection:
-    kind: Literal["sim"] = "sim"
-    """Backend by name; the simulator (PyBullet) is the only one implemented so far."""
+    kind: Literal["sim", "crazyflie"] = "sim"
+    """``sim``: PyBullet in this process. ``crazyflie``: modules over cflib links (see ``modules``)."""
     physics_hz: float = Field(240.0, gt=0)
+    """sim only."""
     motor_time_constant: float = Field(0.02, ge=0)
-    """s"""
+    """sim only, s"""
     modules: tuple[str, ...] = ()
-    """One link per module in assembly order (e.g. Crazyflie URIs ``radio://0/80/2M/E7E7E7E701``); optional for
-    the simulator, but when given its length must match the assembly."""
+    """One link per module in assembly order (Crazyflie URIs: ``radio://0/80/2M/E7E7E7E701``, or
+    ``udp://127.0.0.1:19850`` for simulated modules); required for ``crazyflie``, optional for ``sim``. Its length
+    must match the assembly."""
+    link_timeout_s: float = Field(0.1, gt=0)
+    """crazyflie: a module silent for longer is lost (the flight stops the motors), s."""
+    min_battery_v: float = Field(3.5, ge=0)
+    """crazyflie: preflight rejects a module below this battery voltage, V."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -90,6 +98,9 @@ class FlightConfig:
     """Assembly file, relative to this config."""
     rate_hz: float = Field(250.0, ge=50, le=1000)
     """Control loop rate, Hz."""
+    realtime_priority: int = Field(0, ge=0, le=99)
+    """SCHED_FIFO priority of the control loop thread (0: normal scheduling). Needs CAP_SYS_NICE or an rtprio
+    limit; if not permitted, the flight runs at normal priority and logs a warning."""
     log_dir: str = "../../out/flights"
     """Where MCAP logs go, relative to this config."""
     allocation: Literal["clip", "bounded"] = "clip"

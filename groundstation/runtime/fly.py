@@ -1,8 +1,10 @@
 """``fly``: load a flight config, connect, check, arm, take off, track, land, disarm; log everything to MCAP.
 
-The simulated backend runs inside the same process and publishes its physics pose over Zenoh through a virtual
-mocap, so a dry run exercises the same loop, Zenoh path and logging as a flight with real mocap. The loop runs
-on the wall clock; the simulator is advanced to the wall time at the start of every period.
+Backends: ``sim`` runs PyBullet inside this process and publishes its physics pose over Zenoh through a virtual
+mocap, so a dry run exercises the same loop, Zenoh path and logging as a flight with real mocap; the simulator is
+advanced to the wall time at the start of every period. ``crazyflie`` drives one cflib link per module (radio
+or UDP) and takes poses from whatever publishes them on Zenoh: a mocap bridge, or ``groundstation sim-peer``,
+which simulates the modules behind their real wire protocol in another process.
 
 Operator: the first Ctrl-C (or SIGTERM) lands, a second one stops the motors at once. Every exit path ends with
 the motors off and the MCAP file finalized.
@@ -26,6 +28,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from groundstation import __version__
 from groundstation.assembly.assembly_file import assembly_record, load_assembly
+from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieLinkError, CrazyflieSettings
 from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
 from groundstation.control.trajectory import FlightPlan, make_track
@@ -35,7 +38,7 @@ from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, Subscr
 from groundstation.runtime.closed_loop import FlightVolume, PreflightError, hover_check, record_of, volume_check
 from groundstation.runtime.flight import FailsafePolicy, Flight, Requests
 from groundstation.runtime.flight_config import FlightConfig, load_flight_config
-from groundstation.runtime.loop import WallClock
+from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
 GIL_SWITCH_S = 1e-4
@@ -45,7 +48,10 @@ STILL_SPEED = 0.2
 
 @dataclass
 class Faults:
-    """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight."""
+    """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
+
+    ``mocap_paused`` and ``link_lost`` act on the in-process simulator only; with simulated Crazyflie modules,
+    stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
@@ -123,40 +129,41 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     gains = Gains(**asdict(cfg.gains))
     policy = FailsafePolicy(**asdict(cfg.failsafe))
 
-    from sim.pybullet_backend import PyBulletBackend, SimConfig, resting_height
-    from sim.virtual_mocap import VirtualMocap
+    from sim.pybullet_backend import resting_height
 
+    if cfg.backend.kind == "crazyflie" and not cfg.backend.modules:
+        raise ConfigError("the crazyflie backend needs one link URI per module", path=src, key="backend.modules")
     plan = FlightPlan((0.0, 0.0, resting_height(assembly)), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
     model = ControlModel.from_assembly(assembly)
+    volume = FlightVolume(tuple(np.array(policy.geofence_lower) + 0.2), tuple(np.array(policy.geofence_upper) - 0.2))
     hover_check(model, plan)
-    volume_check(plan, FlightVolume(tuple(np.array(policy.geofence_lower) + 0.2),
-                                    tuple(np.array(policy.geofence_upper) - 0.2)))
+    volume_check(plan, volume)
 
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     with ExitStack() as stack:
         m = cfg.mocap
-        # The simulator plays the mocap system: it listens, the ground station connects (as with a bridge).
-        ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
-        sim_session = open_session(listen=theirs, connect=ours)
-        stack.callback(sim_session.close)
+        if cfg.backend.kind == "sim":
+            # The simulator plays the mocap system: it listens, the ground station connects (as with a bridge).
+            ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
+            world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults))
+            backend = world.backend
+        else:
+            ours = [m.endpoint] if m.listen else []
+            theirs = [] if m.listen else [m.endpoint]
+            world = None
+            backend = CrazyflieBackend(cfg.backend.modules, assembly.params.u_max, assembly.module_rotations,
+                                       CrazyflieSettings(link_timeout=cfg.backend.link_timeout_s,
+                                                         min_battery_v=cfg.backend.min_battery_v))
+            try:
+                backend.connect()
+            except CrazyflieLinkError as exc:
+                raise ConfigError(str(exc), path=src, key="backend.modules") from None
+            stack.callback(backend.close)
+            stack.callback(backend.emergency_stop)  # runs first on the way out: motors off whatever happened
         gs_session = open_session(listen=ours, connect=theirs)
         stack.callback(gs_session.close)
         sub = PoseSubscriber(gs_session, key, SubscriberSettings(max_speed=m.max_speed))
         stack.callback(sub.close)
-        publisher = PosePublisher(sim_session, key)
-        stack.callback(publisher.close)
-        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s)
-
-        def observe(t_sim, state):
-            vmocap.paused = faults.mocap_paused
-            vmocap.on_step(t_sim, state)
-
-        backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
-                                                      motor_time_constant=cfg.backend.motor_time_constant),
-                                  observers=[observe])
-        backend.connect()
-        stack.callback(backend.close)
-        stack.callback(backend.emergency_stop)  # runs first on the way out: motors off whatever happened
 
         log = FlightLog(log_file, {"config": json.dumps(asdict(cfg)), "config_path": src,
                                    "code_version": code_version(),
@@ -165,12 +172,11 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         wall_offset = time.time() - time.monotonic()
         pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, wall_offset)
 
-        # Preflight: let the simulator settle on the ground and the mocap stream start.
+        # Preflight: let the mocap stream start (and the simulator settle on the ground).
         deadline = time.monotonic() + PREFLIGHT_TIMEOUT_S
-        t_pre = 0.0
         while (sub.latest() is None or sub.received < 10) and time.monotonic() < deadline:
-            t_pre += 0.02
-            backend.advance_to(t_pre)
+            if world is not None:
+                world.settle(0.02)
             time.sleep(0.005)
         s = pose.state()
         report = backend.preflight()
@@ -186,26 +192,15 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         if issues:
             log.event("error", "preflight failed: " + "; ".join(issues), time.time())
             raise PreflightError("preflight failed: " + "; ".join(issues))
+        # Take off from where mocap sees the assembly (hardware is never exactly at the nominal spot).
+        plan = FlightPlan(tuple(float(v) for v in s.position), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
+        volume_check(plan, volume)
         log.event("info", "preflight passed", time.time())
 
-        class _Clocked:
-            """The backend advanced relative to where preflight left it."""
-
-            def __init__(self, b, t0):
-                self._b, self._t0 = b, t0
-
-            def advance_to(self, t):
-                self._b.link_ok = not faults.link_lost
-                if on_period is not None:
-                    on_period(t)
-                self._b.advance_to(self._t0 + t)
-
-            def __getattr__(self, name):
-                return getattr(self._b, name)
-
-        flight = Flight(assembly, plan, _Clocked(backend, backend.time), pose, gains=gains,
-                        allocation=cfg.allocation, policy=policy, log=log, requests=requests, advance_backend=True,
-                        truth=backend.true_state, on_status=on_status)
+        before = world.before_period(on_period) if world is not None else on_period
+        flight = Flight(assembly, plan, backend, pose, gains=gains, allocation=cfg.allocation, policy=policy,
+                        log=log, requests=requests, before_period=before,
+                        truth=world.backend.true_state if world is not None else None, on_status=on_status)
         restore = _install_signals(requests) if handle_signals else None
         # The Zenoh callback and MCAP writer threads are Python too; by default a thread may hold the GIL for
         # 5 ms before handing it over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
@@ -213,7 +208,11 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         sys.setswitchinterval(GIL_SWITCH_S)
         wall0 = time.perf_counter()
         try:
-            stats = flight.run(WallClock(), cfg.rate_hz)
+            with realtime_priority(cfg.realtime_priority) as rt:
+                if cfg.realtime_priority and not rt:
+                    log.event("warning", f"real-time priority {cfg.realtime_priority} not permitted (needs "
+                              "CAP_SYS_NICE or an rtprio limit): the loop runs at normal priority", time.time())
+                stats = flight.run(WallClock(SPIN_RT_S if rt else SPIN_S), cfg.rate_hz, realtime=rt)
         finally:
             sys.setswitchinterval(switch)
             if restore is not None:
@@ -223,6 +222,59 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     if log.error is not None:
         raise ConfigError(f"the log writer failed: {log.error}", path=str(log_file))
     return FlyResult(log_file, flight.phase, flight.reason, record.metrics, flight.rec.events)
+
+
+class _SimulatedWorld:
+    """The in-process simulator (``backend.kind = "sim"``): PyBullet physics publishing its pose over Zenoh.
+
+    The flight advances it to the wall time at the start of every period.
+    """
+
+    def __init__(self, assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults) -> None:
+        from sim.pybullet_backend import PyBulletBackend, SimConfig
+        from sim.virtual_mocap import VirtualMocap
+
+        m = cfg.mocap
+        self.faults = faults
+        self._stack = ExitStack()
+        connect = [] if listen else [m.endpoint]
+        session = open_session(listen=listen, connect=connect)
+        self._stack.callback(session.close)
+        publisher = PosePublisher(session, key)
+        self._stack.callback(publisher.close)
+        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s)
+
+        def observe(t_sim, state):
+            vmocap.paused = faults.mocap_paused
+            vmocap.on_step(t_sim, state)
+
+        self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
+                                                           motor_time_constant=cfg.backend.motor_time_constant),
+                                       observers=[observe])
+        self.backend.connect()
+        self._stack.callback(self.backend.close)
+        self._stack.callback(self.backend.emergency_stop)  # runs first on the way out: motors off
+
+    def settle(self, dt: float) -> None:
+        """Advance the simulation by ``dt`` before the flight (preflight)."""
+        self.backend.advance_to(self.backend.time + dt)
+
+    def before_period(self, on_period: Callable[[float], None] | None) -> Callable[[float], None]:
+        t0 = self.backend.time
+
+        def advance(t: float) -> None:
+            self.backend.link_ok = not self.faults.link_lost
+            if on_period is not None:
+                on_period(t)
+            self.backend.advance_to(t0 + t)
+
+        return advance
+
+    def __enter__(self) -> _SimulatedWorld:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stack.close()
 
 
 def _install_signals(requests: Requests):

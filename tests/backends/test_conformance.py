@@ -1,5 +1,7 @@
 """One conformance suite for every backend: the rules the flight loop relies on."""
 
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -7,7 +9,9 @@ import pytest
 
 from groundstation.assembly.assembly_file import load_assembly
 from groundstation.backends.base import Backend
+from groundstation.backends.crazyflie import CrazyflieBackend
 from groundstation.backends.fake import FakeBackend
+from sim.crazyflie_peer import PeerConfig, SimulatedModules
 
 ROOT = Path(__file__).resolve().parents[2]
 ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
@@ -24,16 +28,51 @@ def make_sim():
     return PyBulletBackend(ASM)
 
 
-@pytest.fixture(params=[make_fake, make_sim], ids=["fake", "pybullet"])
+class HeldCrazyflie(CrazyflieBackend):
+    """The Crazyflie backend with a test helper: repeat the last command for a while (the modules' watchdog
+    stops the motors when commands stop)."""
+
+    last = np.zeros(8)
+
+    def send(self, u):
+        self.last = np.asarray(u, float)
+        super().send(u)
+
+    def settle(self) -> None:
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            super().send(self.last)
+            time.sleep(0.005)
+
+
+def make_crazyflie():
+    return HeldCrazyflie([f"udp://127.0.0.1:{19874 + i}" for i in range(ASM.n)], U_MAX, ASM.module_rotations)
+
+
+@pytest.fixture(params=[make_fake, make_sim, make_crazyflie], ids=["fake", "pybullet", "crazyflie-udp"])
 def backend(request):
+    peer = None
+    if request.param is make_crazyflie:
+        peer = SimulatedModules(ASM, PeerConfig(port=19874, mocap_endpoint="tcp/127.0.0.1:7474"))
+        peer.open()
+        th = threading.Thread(target=peer.run, daemon=True)
+        th.start()
     be = request.param()
-    with be:
-        yield be
+    try:
+        with be:
+            yield be
+    finally:
+        if peer is not None:
+            peer.stop_event.set()
+            th.join(5)
+            peer.close()
 
 
 def applied(be) -> np.ndarray:
     if hasattr(be, "advance_to"):
         be.advance_to(be.time + 0.5)  # let the motor lag settle
+    if hasattr(be, "settle"):
+        be.settle()
     return be.telemetry().motors
 
 

@@ -104,8 +104,65 @@ def test_bad_inputs_never_arm(tmp_path):
     with pytest.raises(ConfigError, match="backend.modules"):
         fly(config_with(tmp_path, **{"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nmodules = ["a"]'}))
     with pytest.raises(ConfigError, match="backend.kind"):
+        fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "mavlink"'}))
+    with pytest.raises(ConfigError, match="backend.modules: the crazyflie backend needs one link URI per module"):
         fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "crazyflie"'}))
+    no_dongle = 'kind = "crazyflie"\nmodules = ["radio://0/80/2M/E7E7E7E701", "radio://0/80/2M/E7E7E7E702"]'
+    with pytest.raises(ConfigError, match="backend.modules: cannot open radio://0/80/2M/E7E7E7E701"):
+        fly(config_with(tmp_path, **{'kind = "sim"': no_dongle}), log_path=tmp_path / "y.mcap")
     with pytest.raises(ConfigError, match="log_dir"):
         fly(config_with(tmp_path, **{'log_dir = "../../out/flights"': 'log_dir = "/proc/nope"'}))
     with pytest.raises(LinkError):
         fly(config_with(tmp_path, endpoint="tcp/256.0.0.1:1"), log_path=tmp_path / "x.mcap")
+
+
+@pytest.fixture
+def sim_peer(tmp_path):
+    """``groundstation sim-peer`` in its own process, as an operator would start it; yields the flight config."""
+    import subprocess
+    import sys
+    import time
+
+    text = (ROOT / "configs/flights/toy_figure8_crazyflie_sitl.toml").read_text()
+    text = text.replace('assembly = "../assemblies/toy_v2.json"',
+                        f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
+    text = text.replace("19850", "19880").replace("19851", "19881").replace("7448", "7476")
+    cfg = tmp_path / "cf.toml"
+    cfg.write_text(text)
+    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
+                             str(ROOT / "configs/assemblies/toy_v2.json"), "--port", "19880",
+                             "--mocap", "tcp/127.0.0.1:7476"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    time.sleep(2.0)
+    yield cfg, peer
+    if peer.poll() is None:  # still running: it must stop cleanly on SIGTERM
+        peer.terminate()
+        out, err = peer.communicate(timeout=10)
+        assert peer.returncode == 0, err
+
+
+def test_crazyflie_backend_flight_through_simulated_modules(sim_peer, tmp_path):
+    cfg, _ = sim_peer
+    log = tmp_path / "cf.mcap"
+    res = fly(cfg, duration=3.0, log_path=log)
+    assert res.phase == "done" and res.reason == ""
+    assert res.metrics["pos_rmse_m"] < 0.03  # from mocap: no physics truth in this process
+    counts, meta, logs, motors = read_log(log)
+    assert json.loads(meta["config"]["value"])["backend"]["kind"] == "crazyflie"
+    assert counts["/mocap/assembly"] > 100 * 8 and counts["/backend/telemetry"] > 0
+    airborne = [m for _, m in motors if m["phase"] == "track"]
+    assert airborne and min(np.mean(m["motors"]) for m in airborne) > 0.2  # hover needs ~0.38 of u_max
+    assert motors[-1][1].get("motors_off") and np.max(motors[-1][1]["motors"]) == 0.0
+
+
+def test_crazyflie_link_loss_stops_the_motors(sim_peer, tmp_path):
+    cfg, peer = sim_peer
+    log = tmp_path / "loss.mcap"
+    res = fly(cfg, duration=6.0, log_path=log, on_period=lambda t: peer.kill() if t > 4.0 else None)
+    assert res.phase == "emergency" and res.reason == "backend link lost"
+    counts, meta, logs, motors = read_log(log)
+    off = [m for _, m in motors if m.get("motors_off")]
+    last_flying = [m for _, m in motors if not m.get("motors_off")][-1]
+    assert len(off) == 1 and np.max(off[0]["motors"]) == 0.0 and motors[-1][1] is off[0]
+    assert off[0]["t"] - last_flying["t"] <= 1.0 / 250 + 1e-6  # motors off in the period the loss is seen
+    assert 4.0 < off[0]["t"] < 4.0 + 0.1 + 0.05  # seen within the 0.1 s link timeout of the kill
+    assert any(b"backend link lost" in data for _, data in logs)

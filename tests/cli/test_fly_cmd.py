@@ -1,0 +1,29 @@
+import json
+import socket
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+ASSEMBLY = str(ROOT / "configs/assemblies/toy_v2.json")
+
+
+def test_sim_peer_runs_and_reports(cli):
+    code, out, err = cli("sim-peer", ASSEMBLY, "--port", "19884", "--mocap", "tcp/127.0.0.1:7477",
+                         "--duration", "0.5")
+    assert code == 0, err
+    assert "udp://127.0.0.1:19884, udp://127.0.0.1:19885" in err
+    report = json.loads(out)
+    assert report["packets"] == 0 and abs(report["simulated_s"] - 0.5) < 0.01
+
+
+def test_sim_peer_port_in_use(cli):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 19887))
+        code, out, err = cli("sim-peer", ASSEMBLY, "--port", "19886", "--mocap", "tcp/127.0.0.1:7478")
+    assert code == 2 and err.startswith("groundstation: error: cannot listen on udp 127.0.0.1:19886..19887")
+
+
+def test_sim_peer_bad_assembly(cli, tmp_path):
+    bad = tmp_path / "a.json"
+    bad.write_text("{}")
+    code, out, err = cli("sim-peer", str(bad))
+    assert code == 2 and str(bad) in err and out == ""
