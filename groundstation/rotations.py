@@ -5,6 +5,8 @@ Quaternions are ``(x, y, z, w)``, the order of PyBullet and of ``foxglove.Quater
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -23,7 +25,7 @@ def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
 
 def matrix_to_rotvec(r: np.ndarray) -> np.ndarray:
     """Rotation vector of a rotation matrix (inverse of :func:`rotvec_to_matrix` for angles below pi)."""
-    angle = float(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+    angle = math.acos(min(1.0, max(-1.0, (float(np.trace(r)) - 1.0) / 2.0)))
     v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
     if angle < 1e-9:
         return 0.5 * v

@@ -36,11 +36,13 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         if console.is_terminal else None
     last = [0.0]
 
-    def on_status(t, phase, age, worst):
+    def on_status(s):
         now = time.monotonic()
         if live is not None and now - last[0] > 0.2:
             last[0] = now
-            live.update(f"[bold]{phase}[/] t={t:6.1f} s  mocap age {age * 1e3:5.1f} ms  worst motor {worst:4.0%}"
+            battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
+            live.update(f"[bold]{s.phase}[/] t={s.t:6.1f} s  mocap age {s.mocap_age * 1e3:5.1f} ms  worst motor "
+                        f"{s.worst_motor:4.0%}{battery}  late periods {s.overruns}"
                         "   (l or Ctrl-C: land; k or Ctrl-C twice: stop motors)")
 
     from groundstation.runtime.keys import KeyReader

@@ -21,6 +21,7 @@ does, the desired attitude is adapted to ``F'_d`` so the force becomes producibl
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,13 +67,13 @@ def vee(m: np.ndarray) -> np.ndarray:
 
 def _solve_angle(a: float, b: float, c: float) -> float:
     """Smallest |x| with a cos x + b sin x + c = 0 (or the x minimizing the residual when none exists)."""
-    r = np.hypot(a, b)
-    phi = np.arctan2(b, a)
+    r = math.hypot(a, b)
+    phi = math.atan2(b, a)
     if r < 1e-12:
         return 0.0
-    k = np.clip(-c / r, -1.0, 1.0)
-    cands = [phi + np.arccos(k), phi - np.arccos(k)]
-    cands = [(x + np.pi) % (2 * np.pi) - np.pi for x in cands]
+    k = min(1.0, max(-1.0, -c / r))
+    cands = [phi + math.acos(k), phi - math.acos(k)]
+    cands = [(x + math.pi) % (2 * math.pi) - math.pi for x in cands]
     return float(min(cands, key=abs))
 
 

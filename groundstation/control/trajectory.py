@@ -6,6 +6,7 @@ take-off, the tracking trajectory and landing so the reference is continuous in 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -17,8 +18,10 @@ TWO_PI = 2.0 * np.pi
 
 
 def euler_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Rotation ``R_z(yaw) R_y(pitch) R_x(roll)``, radians."""
-    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    """Rotation ``R_z(yaw) R_y(pitch) R_x(roll)``, radians (scalar ``math``: this runs several times per control
+    period, where numpy's per-call overhead on scalars dominates)."""
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
     return np.array([
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
@@ -28,8 +31,8 @@ def euler_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 def roll_pitch_yaw(r: np.ndarray) -> tuple[float, float, float]:
     """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix, radians."""
-    return (float(np.arctan2(r[2, 1], r[2, 2])), float(-np.arcsin(np.clip(r[2, 0], -1.0, 1.0))),
-            float(np.arctan2(r[1, 0], r[0, 0])))
+    r20 = min(1.0, max(-1.0, float(r[2, 0])))
+    return (math.atan2(float(r[2, 1]), float(r[2, 2])), -math.asin(r20), math.atan2(float(r[1, 0]), float(r[0, 0])))
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,7 @@ class Ramp:
     attitude: Attitude = field(default_factory=Attitude)
 
     def __call__(self, t: float) -> Setpoint:
-        s = np.clip(t / self.duration, 0.0, 1.0)
+        s = min(1.0, max(0.0, t / self.duration))
         inside = 0.0 < t < self.duration
         h = 10 * s**3 - 15 * s**4 + 6 * s**5
         dh = (30 * s**2 - 60 * s**3 + 30 * s**4) / self.duration if inside else 0.0

@@ -69,6 +69,23 @@ class Requests:
     stop: threading.Event = field(default_factory=threading.Event)
 
 
+@dataclass(frozen=True)
+class Status:
+    """What the operator's status line shows, once per period."""
+
+    t: float
+    """Flight time, s."""
+    phase: str
+    mocap_age: float
+    """s"""
+    worst_motor: float
+    """Largest rotor command as a fraction of u_max."""
+    battery_v: float | None
+    """Lowest module battery, V (None when the backend does not report it)."""
+    overruns: int
+    """Late periods so far."""
+
+
 @dataclass
 class Recording:
     t: list = field(default_factory=list)
@@ -194,7 +211,7 @@ class Flight:
             return False
         self.backend.send(u)
         self._last_u = u
-        self._record(t, state, sp, out, u, age)
+        self._record(t, state, sp, out, u, age, telemetry)
         return True
 
     def _log_motors_off(self, t: float) -> None:
@@ -209,7 +226,7 @@ class Flight:
         self._log_motors_off(t)
         self._set_phase(t, "done", "landed")
 
-    def _record(self, t, state, sp, out, u, age) -> None:
+    def _record(self, t, state, sp, out, u, age, telemetry) -> None:
         truth = self.truth() if self.truth is not None else state
         r = self.rec
         r.t.append(t)
@@ -237,7 +254,10 @@ class Flight:
                 self.log.record("/backend/telemetry", {"t": t, "link_ok": tel.link_ok, "motors": tel.motors,
                                                        "battery_v": tel.battery_v, "gyro": tel.gyro}, tw)
         if self.on_status is not None:
-            self.on_status(t, self.phase, age, float(u.max() / self.model.u_max))
+            battery = float(telemetry.battery_v.min()) if telemetry.battery_v.size else None
+            st = self._stats
+            self.on_status(Status(t, self.phase, age, float(u.max() / self.model.u_max), battery,
+                                  st.overruns if st is not None else 0))
 
     # -- run --------------------------------------------------------------------------------------------------------
     def run(self, clock: Clock, rate_hz: float, realtime: bool = False) -> LoopStats:

@@ -44,9 +44,11 @@ def config_with(tmp_path, **changes) -> Path:
 def test_short_figure8_end_to_end(tmp_path):
     cfg = config_with(tmp_path)
     log = tmp_path / "f.mcap"
-    res = fly(cfg, duration=4.0, log_path=log)
+    statuses = []
+    res = fly(cfg, duration=4.0, log_path=log, on_status=statuses.append)
     assert res.phase == "done" and res.reason == ""
     assert res.metrics["pos_rmse_m"] < 0.03 and res.metrics["max_roll_error_deg"] < 1.0
+    assert statuses and all(s.battery_v is None for s in statuses)  # the simulator has no battery
     counts, meta, logs, motors = read_log(log)
     for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control", "/log", "/loop/timing",
                   "/backend/telemetry", "/flight/summary"):
@@ -143,8 +145,12 @@ def sim_peer(tmp_path):
 def test_crazyflie_backend_flight_through_simulated_modules(sim_peer, tmp_path):
     cfg, _ = sim_peer
     log = tmp_path / "cf.mcap"
-    res = fly(cfg, duration=3.0, log_path=log)
+    statuses = []
+    res = fly(cfg, duration=3.0, log_path=log, on_status=statuses.append)
     assert res.phase == "done" and res.reason == ""
+    track = [s for s in statuses if s.phase == "track"]
+    assert track and all(s.battery_v == pytest.approx(4.0) and 0.2 < s.worst_motor <= 1.0 for s in track)
+    assert max(s.mocap_age for s in track) < 0.25
     assert res.metrics["pos_rmse_m"] < 0.03  # from mocap: no physics truth in this process
     counts, meta, logs, motors = read_log(log)
     assert json.loads(meta["config"]["value"])["backend"]["kind"] == "crazyflie"
