@@ -242,7 +242,9 @@ class _SimulatedWorld:
         self._stack.callback(session.close)
         publisher = PosePublisher(session, key)
         self._stack.callback(publisher.close)
-        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s)
+        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s,
+                              threaded=True)
+        self._stack.callback(vmocap.close)
 
         def observe(t_sim, state):
             vmocap.paused = faults.mocap_paused
