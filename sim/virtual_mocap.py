@@ -16,17 +16,19 @@ import numpy as np
 from groundstation.control.state import RigidState
 from groundstation.mocap.zenoh_link import PosePublisher
 from groundstation.rotations import rotvec_to_matrix
+from groundstation.runtime.loop import LoopActivity
 
 
 class VirtualMocap:
     """Publishes noisy, delayed physics poses. With ``threaded``, a thread of its own encodes and sends them, as
     a real mocap system does independently of the ground station: in the ``fly`` dry run the physics runs on the
-    control thread, and a Zenoh put there cost ~0.25 ms of a 2 ms period (the put releases the GIL, so on its own
-    thread it overlaps with the loop). Call :meth:`close` to stop that thread."""
+    control thread, and a Zenoh put there cost ~0.25 ms of a 2 ms period. That thread sends between control
+    periods (``activity``), so a pose reaches the ground station at most one period later than it would directly.
+    Call :meth:`close` to stop it."""
 
     def __init__(self, publisher: PosePublisher, rate_hz: float = 100.0, position_noise: float = 0.0,
                  attitude_noise: float = 0.0, latency: float = 0.0, seed: int = 0, clock=time.monotonic,
-                 threaded: bool = False) -> None:
+                 threaded: bool = False, activity: LoopActivity | None = None) -> None:
         self._pub = publisher
         self._period = 1.0 / rate_hz
         self._next = 0.0
@@ -38,7 +40,7 @@ class VirtualMocap:
         self.paused = False
         """While True nothing is published (fault injection: a mocap dropout)."""
         self._outbox: deque = deque()
-        self._wake = threading.Event()
+        self._activity = activity or LoopActivity()
         self._closed = False
         self._thread = threading.Thread(target=self._send_loop, name="virtual-mocap", daemon=True) \
             if threaded else None
@@ -57,20 +59,19 @@ class VirtualMocap:
                 if self._thread is None:
                     self._pub.publish(pos, rot, stamp)
                 else:
-                    self._outbox.append((pos, rot, stamp))
-                    self._wake.set()
+                    self._outbox.append((pos, rot, stamp))  # no wake-up: the thread sends between periods
                 self.published += 1
 
     def _send_loop(self) -> None:
         while not self._closed:
-            self._wake.wait(0.1)
-            self._wake.clear()
-            while self._outbox:
+            self._activity.wait_end(0.005)
+            while self._outbox and not self._activity.busy:
                 self._pub.publish(*self._outbox.popleft())
 
     def close(self) -> None:
         """Send what is pending and stop the publishing thread (if any). Idempotent."""
         if self._thread is not None and not self._closed:
             self._closed = True
-            self._wake.set()
             self._thread.join(2.0)
+            while self._outbox:
+                self._pub.publish(*self._outbox.popleft())

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import time
+import threading
 
 import click
 from rich.console import Console
@@ -14,8 +14,11 @@ from groundstation.cli.common import stderr_console, writable_output
 from groundstation.errors import UsageError
 from groundstation.flightlog.mcap_log import recover
 from groundstation.runtime.flight import Requests
+from groundstation.runtime.loop import LoopActivity
 
 EXIT_EMERGENCY = 1
+STATUS_S = 0.2
+"""Status line refresh interval, s."""
 
 
 @click.command("fly")
@@ -32,29 +35,44 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     log_path = writable_output(log, (".mcap",)) if log else None
     console = stderr_console()
     requests = Requests()
-    live = Live(console=console, auto_refresh=True, refresh_per_second=5, transient=True) \
-        if console.is_terminal else None
-    last = [0.0]
+    # The status line is drawn by a thread of ours between control periods (LoopActivity), not by rich's
+    # auto-refresh thread, whose rendering would take the GIL while a period computes.
+    live = Live(console=console, auto_refresh=False, transient=True) if console.is_terminal else None
+    activity = LoopActivity()
+    latest: list = [None]
+    done = threading.Event()
 
-    def on_status(s):
-        now = time.monotonic()
-        if live is not None and now - last[0] > 0.2:
-            last[0] = now
+    def on_status(s):  # on the control thread: only keep the newest
+        latest[0] = s
+
+    def render():
+        shown = None
+        while not done.is_set():
+            activity.wait_end(STATUS_S)
+            s = latest[0]
+            if s is None or s is shown or activity.busy:
+                continue
+            shown = s
             battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
             live.update(f"[bold]{s.phase}[/] t={s.t:6.1f} s  mocap age {s.mocap_age * 1e3:5.1f} ms  worst motor "
                         f"{s.worst_motor:4.0%}{battery}  late periods {s.overruns}"
-                        "   (l or Ctrl-C: land; k or Ctrl-C twice: stop motors)")
+                        "   (l or Ctrl-C: land; k or Ctrl-C twice: stop motors)", refresh=True)
+            done.wait(STATUS_S)
 
     from groundstation.runtime.keys import KeyReader
 
+    renderer = threading.Thread(target=render, name="status-line", daemon=True) if live is not None else None
     if live is not None:
         live.start()
+        renderer.start()
     try:
         with KeyReader(requests):
             result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
-                         handle_signals=True)
+                         handle_signals=True, activity=activity)
     finally:
+        done.set()
         if live is not None:
+            renderer.join(2.0)
             live.stop()
     m = result.metrics
     summary = {"phase": result.phase, "reason": result.reason, "log": str(result.log_path), **m}

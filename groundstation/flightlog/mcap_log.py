@@ -16,9 +16,9 @@ SIGTERM.
 from __future__ import annotations
 
 import json
-import queue
 import threading
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -34,11 +34,12 @@ from mcap_protobuf.schema import register_schema
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.rotations import matrix_to_quat
+from groundstation.runtime.loop import LoopActivity
 
 CHUNK_BYTES = 32 * 1024
 FLUSH_S = 1.0
-HOLD_MAX_S = 0.05
-"""Longest the writer waits while held, s (bounds the backlog if a holder forgets to release)."""
+POLL_S = 0.02
+"""The writer's wake-up interval when no control loop signals the end of its periods, s."""
 _JSON_SCHEMA = json.dumps({"type": "object"}).encode()
 LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
 
@@ -56,7 +57,8 @@ def _stamp(t: float) -> Timestamp:
 class FlightLog:
     """Thread-safe, non-blocking logger: calls enqueue, a writer thread encodes and writes."""
 
-    def __init__(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
+    def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
+                 activity: LoopActivity | None = None) -> None:
         self.path = Path(path)
         self._fh = self.path.open("wb")
         self._writer = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
@@ -64,12 +66,12 @@ class FlightLog:
         for name, data in (metadata or {}).items():
             self._writer.add_metadata(name, {"value": data})
         self._channels: dict[str, int] = {}
-        self._queue: queue.Queue = queue.Queue()
+        # Producers append without waking the writer; it runs between control periods (see LoopActivity).
+        self._items: deque = deque()
+        self._activity = activity or LoopActivity()
         self._closed = False
         self.dropped = 0
         self.error: BaseException | None = None
-        self._may_write = threading.Event()
-        self._may_write.set()
         self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
         self._thread.start()
 
@@ -119,23 +121,11 @@ class FlightLog:
             cube.color.r, cube.color.g, cube.color.b, cube.color.a = 0.1, 0.1, 0.1, 0.9
         self.protobuf("/scene", upd, t)
 
-    def hold(self) -> None:
-        """Ask the writer to pause between messages (while a control period computes); see :meth:`release`.
-
-        The writer is Python and needs the GIL: writing while the control loop computes stretches the loop's
-        compute time (measured at 500 Hz: the main cause of late periods). Held, it finishes the message in hand
-        and waits, at most ``HOLD_MAX_S``, so it can never starve.
-        """
-        self._may_write.clear()
-
-    def release(self) -> None:
-        self._may_write.set()
-
     def _put(self, item) -> None:
         if self._closed:
             self.dropped += 1
             return
-        self._queue.put(item)
+        self._items.append(item)
 
     # -- writer thread -------------------------------------------------------------------------------------------
     def _channel(self, topic: str, kind: str, message_type) -> int:
@@ -151,39 +141,43 @@ class FlightLog:
     def _run(self) -> None:
         last_flush = time.monotonic()
         try:
-            while True:
-                try:
-                    item = self._queue.get(timeout=0.2)
-                except queue.Empty:
-                    item = None
-                if item is not None and item[0] == "stop":
-                    break
-                self._may_write.wait(HOLD_MAX_S)
-                if item is not None and item[0] == "pose":
-                    self._pose_messages(item[1], *item[2], item[3])
-                elif item is not None:
-                    kind, topic, data, t = item
-                    if kind == "json":
-                        cid, payload = self._channel(topic, kind, None), json.dumps(data, default=_jsonable).encode()
-                    elif kind == "raw":
-                        cid, payload = self._channel(topic, kind, data[0]), data[1]
-                    else:
-                        cid, payload = self._channel(topic, kind, type(data)), data.SerializeToString()
-                    ns = int(t * 1e9)
-                    self._writer.add_message(cid, log_time=ns, data=payload, publish_time=ns)
+            stopping = False
+            while not stopping:
+                self._activity.wait_end(POLL_S)
+                # Between periods only (or once closing): finish the backlog, message by message.
+                while self._items and (not self._activity.busy or self._closed):
+                    item = self._items.popleft()
+                    if item[0] == "stop":
+                        stopping = True
+                        break
+                    self._write(item)
                 if time.monotonic() - last_flush >= FLUSH_S:
                     self._fh.flush()
                     last_flush = time.monotonic()
         except BaseException as exc:  # surfaced to the main loop through .error
             self.error = exc
 
+    def _write(self, item) -> None:
+        kind, topic, data, t = item
+        if kind == "pose":
+            self._pose_messages(topic, *data, t)
+            return
+        if kind == "json":
+            cid, payload = self._channel(topic, kind, None), json.dumps(data, default=_jsonable).encode()
+        elif kind == "raw":
+            cid, payload = self._channel(topic, kind, data[0]), data[1]
+        else:
+            cid, payload = self._channel(topic, kind, type(data)), data.SerializeToString()
+        ns = int(t * 1e9)
+        self._writer.add_message(cid, log_time=ns, data=payload, publish_time=ns)
+
     def close(self, timeout: float = 10.0) -> None:
         """Write what is queued, finish the file (summary and footer) and close it. Idempotent."""
         if self._closed:
             return
         self._closed = True
-        self.release()
-        self._queue.put(("stop", None, None, 0.0))
+        self._items.append(("stop", None, None, 0.0))
+        self._activity.end()  # wake the writer now (harmless to a loop: it has finished when we close)
         self._thread.join(timeout)
         self._writer.finish()
         self._fh.close()

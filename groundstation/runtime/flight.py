@@ -26,9 +26,18 @@ from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
-from groundstation.runtime.loop import Clock, LoopStats, run_fixed_rate
+from groundstation.runtime.loop import (
+    Clock,
+    LoopActivity,
+    LoopStats,
+    collect_young,
+    collector_paused,
+    run_fixed_rate,
+)
 
 AIRBORNE = ("takeoff", "settle", "track", "hold")
+GC_INTERVAL_S = 1.0
+"""The loop collects Python's young garbage generations about this often, between periods, s."""
 
 
 class PoseSource(Protocol):
@@ -105,7 +114,8 @@ class Flight:
     def __init__(self, assembly: Assembly, plan: FlightPlan, backend, pose: PoseSource, *, gains: Gains | None = None,
                  allocation: Literal["clip", "bounded"] = "clip", policy: FailsafePolicy | None = None,
                  log=None, requests: Requests | None = None,
-                 before_period: Callable[[float], None] | None = None, truth=None, on_status=None) -> None:
+                 before_period: Callable[[float], None] | None = None, truth=None, on_status=None,
+                 activity: LoopActivity | None = None) -> None:
         self.assembly, self.plan, self.backend, self.pose = assembly, plan, backend, pose
         self.gains = gains or Gains()
         self.model = ControlModel.from_assembly(assembly)
@@ -114,6 +124,7 @@ class Flight:
         self.log = log
         self.requests = requests or Requests()
         self.before_period = before_period  # called with t first thing every period (advance a simulator)
+        self.activity = activity  # marks each period busy for the log writer and other background threads
         self.truth = truth  # optional callable returning the true state (simulation), recorded for metrics
         self.on_status = on_status
         self.phase = "preflight"
@@ -216,8 +227,11 @@ class Flight:
 
     def _log_motors_off(self, t: float) -> None:
         if self.log is not None:
-            u = self.backend.telemetry().motors
-            self.log.record("/control", {"t": t, "phase": self.phase, "motors": u.reshape(-1, 4) / self.model.u_max,
+            # "motors" is what was commanded (zero, with the stop); "applied" what the backend reports now, which
+            # for real modules can lag by one reply (their state packets are already on the way).
+            applied = self.backend.telemetry().motors.reshape(-1, 4) / self.model.u_max
+            self.log.record("/control", {"t": t, "phase": self.phase, "motors": np.zeros_like(applied),
+                                         "applied": applied,
                                          "motors_off": True}, self._t_wall0 + t)
 
     def _finish(self, t: float) -> None:
@@ -266,15 +280,24 @@ class Flight:
         ``realtime`` only records that the caller runs this thread under real-time scheduling."""
         self._stats = LoopStats(1.0 / rate_hz, realtime=realtime)
         step = self.step
-        if self.log is not None and hasattr(self.log, "hold"):
-            def step(k: int, t: float) -> bool:  # the log writer waits while a period computes (GIL)
-                self.log.hold()
+        if self.activity is not None:
+            def step(k: int, t: float) -> bool:  # background threads wait while a period computes (GIL)
+                self.activity.begin()
                 try:
                     return self.step(k, t)
                 finally:
-                    self.log.release()
+                    self.activity.end()
+        every = max(1, int(rate_hz * GC_INTERVAL_S))
+        pending = [0]
+
+        def between(time_left: float) -> None:  # young-generation GC once a second, in a period's idle time
+            pending[0] += 1
+            if pending[0] >= every and collect_young(time_left):
+                pending[0] = 0
+
         try:
-            stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats)
+            with collector_paused():
+                stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:
             self._emergency(self.rec.t[-1] if self.rec.t else 0.0, f"{type(exc).__name__}: {exc}")
             raise

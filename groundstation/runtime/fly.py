@@ -38,7 +38,7 @@ from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, Subscr
 from groundstation.runtime.closed_loop import FlightVolume, PreflightError, hover_check, record_of, volume_check
 from groundstation.runtime.flight import FailsafePolicy, Flight, Requests
 from groundstation.runtime.flight_config import FlightConfig, load_flight_config
-from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, WallClock, realtime_priority
+from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopActivity, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
 GIL_SWITCH_S = 1e-4
@@ -101,7 +101,10 @@ def code_version() -> str:
 
 def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
         requests: Requests | None = None, faults: Faults | None = None,
-        on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False) -> FlyResult:
+        on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
+        activity: LoopActivity | None = None) -> FlyResult:
+    """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
+    thread (e.g. a status display) work between control periods, like the log writer does."""
     cfg, base = load_flight_config(config_path)
     src = str(config_path)
     if duration is not None:
@@ -140,12 +143,13 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     volume_check(plan, volume)
 
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
+    activity = activity or LoopActivity()
     with ExitStack() as stack:
         m = cfg.mocap
         if cfg.backend.kind == "sim":
             # The simulator plays the mocap system: it listens, the ground station connects (as with a bridge).
             ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
-            world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults))
+            world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults, activity))
             backend = world.backend
         else:
             ours = [m.endpoint] if m.listen else []
@@ -167,7 +171,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
 
         log = FlightLog(log_file, {"config": json.dumps(asdict(cfg)), "config_path": src,
                                    "code_version": code_version(),
-                                   "assembly": json.dumps(assembly_record(assembly))})
+                                   "assembly": json.dumps(assembly_record(assembly))}, activity=activity)
         stack.callback(log.close)
         wall_offset = time.time() - time.monotonic()
         pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, wall_offset)
@@ -200,7 +204,8 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         before = world.before_period(on_period) if world is not None else on_period
         flight = Flight(assembly, plan, backend, pose, gains=gains, allocation=cfg.allocation, policy=policy,
                         log=log, requests=requests, before_period=before,
-                        truth=world.backend.true_state if world is not None else None, on_status=on_status)
+                        truth=world.backend.true_state if world is not None else None, on_status=on_status,
+                        activity=activity)
         restore = _install_signals(requests) if handle_signals else None
         # The Zenoh callback and MCAP writer threads are Python too; by default a thread may hold the GIL for
         # 5 ms before handing it over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
@@ -230,7 +235,8 @@ class _SimulatedWorld:
     The flight advances it to the wall time at the start of every period.
     """
 
-    def __init__(self, assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults) -> None:
+    def __init__(self, assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults,
+                 activity: LoopActivity) -> None:
         from sim.pybullet_backend import PyBulletBackend, SimConfig
         from sim.virtual_mocap import VirtualMocap
 
@@ -243,7 +249,7 @@ class _SimulatedWorld:
         publisher = PosePublisher(session, key)
         self._stack.callback(publisher.close)
         vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s,
-                              threaded=True)
+                              threaded=True, activity=activity)
         self._stack.callback(vmocap.close)
 
         def observe(t_sim, state):

@@ -9,7 +9,9 @@ bursting to catch up.
 
 from __future__ import annotations
 
+import gc
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -57,6 +59,67 @@ class SimClock:
 
     def sleep_until(self, t: float) -> None:
         self._backend.advance_to(t)
+
+
+class LoopActivity:
+    """Tells background Python threads (log writer, simulated mocap, status line) when the loop is between periods.
+
+    Python threads share one GIL. A thread that wakes while a period computes takes the GIL from the loop (after
+    the switch interval) and, worse, must first be scheduled by the OS before the loop can get it back: a
+    real-time loop thread then waits on an ordinary one. Measured at 500 Hz, such hand-overs were the largest
+    source of late periods. So producers on the loop thread only append to deques (no wake-ups), the loop
+    marks :meth:`begin` / :meth:`end` around each period, and background threads wait for :meth:`end` and work
+    while :attr:`busy` is False.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self.busy = False
+        """True while a period computes (a plain bool: reads and writes are atomic under the GIL)."""
+
+    def begin(self) -> None:
+        self.busy = True
+
+    def end(self) -> None:
+        self.busy = False
+        with self._cond:
+            self._cond.notify_all()
+
+    def wait_end(self, timeout: float) -> None:
+        """Block until the next :meth:`end` or ``timeout`` seconds (so work proceeds when no loop runs)."""
+        with self._cond:
+            self._cond.wait(timeout)
+
+
+@contextmanager
+def collector_paused() -> Iterator[None]:
+    """Run the block with Python's cyclic garbage collector off, everything allocated before it frozen.
+
+    An automatic collection runs in whichever thread happens to allocate, holding the GIL: measured during a
+    500 Hz dry run, 4 young-generation passes per second took 0.5-1.5 ms each and an oldest-generation pass 20 ms,
+    the largest single cause of late periods. Inside the block the loop collects the young generations itself,
+    between periods (:func:`collect_young`); the oldest generation waits for the end of the block. Reference
+    counting still frees everything that is not in a cycle, which is nearly everything the loop allocates.
+    """
+    was_enabled = gc.isenabled()
+    gc.freeze()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+        if was_enabled:
+            gc.enable()
+
+
+def collect_young(time_left: float, min_time: float = 1.2e-3) -> bool:
+    """Collect generations 0 and 1 if at least ``min_time`` seconds remain before the next period; True if done.
+
+    Measured in a 500 Hz dry run with one collection a second: 0.64 ms median, 0.75 ms worst."""
+    if time_left < min_time:
+        return False
+    gc.collect(1)
+    return True
 
 
 @contextmanager
@@ -108,11 +171,13 @@ class LoopStats:
 
 
 def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Clock,
-                   max_periods: int | None = None, stats: LoopStats | None = None) -> LoopStats:
+                   max_periods: int | None = None, stats: LoopStats | None = None,
+                   between: Callable[[float], object] | None = None) -> LoopStats:
     """Call ``step(k, t)`` at ``rate_hz`` (``t`` seconds since the start, on ``clock``) until it returns False.
 
     The step for period k is scheduled at ``t0 + k / rate_hz``. Pass ``stats`` to let the step read the timing
-    of the periods before it (e.g. to log it).
+    of the periods before it (e.g. to log it). ``between(time_left)`` runs after each step's timing is taken,
+    with the seconds left before the next deadline (housekeeping; if it runs late, the next start error shows it).
     """
     period = 1.0 / rate_hz
     stats = stats if stats is not None else LoopStats(period)
@@ -132,4 +197,6 @@ def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Cl
         if done > t0 + k * period:  # overran: skip to the next deadline still ahead
             stats.overruns += 1
             k = int(np.floor((done - t0) / period)) + 1
+        if between is not None:
+            between(t0 + k * period - clock.now())
     return stats

@@ -80,8 +80,12 @@ def test_failsafes_stop_or_land_and_are_logged(tmp_path, fault, expect_phase, re
     counts, meta, logs, motors = read_log(log)
     texts = [d.decode(errors="ignore") for _, d in logs]
     assert any(reason in t for t in texts)
-    # the log ends with the motors commanded off, and nothing is commanded after that
+    # the log ends with the motors commanded off, and nothing is commanded after that; the simulator applies the
+    # stop at once, so its reported motors are zero in that same record
     assert motors[-1][1]["motors_off"] and np.max(motors[-1][1]["motors"]) == 0.0
+    assert np.max(motors[-1][1]["applied"]) == 0.0
+    if expect_phase == "emergency":  # stopped in flight: the period before still had thrust
+        assert np.max(motors[-2][1]["motors"]) > 0.0
     assert {"setpoint", "wrench", "motors", "loop"} <= set(motors[len(motors) // 2][1])
     if expect_phase == "emergency":
         t_event = [t for t, d in logs if reason.encode() in d][0]
@@ -169,6 +173,6 @@ def test_crazyflie_link_loss_stops_the_motors(sim_peer, tmp_path):
     off = [m for _, m in motors if m.get("motors_off")]
     last_flying = [m for _, m in motors if not m.get("motors_off")][-1]
     assert len(off) == 1 and np.max(off[0]["motors"]) == 0.0 and motors[-1][1] is off[0]
-    assert off[0]["t"] - last_flying["t"] <= 1.0 / 250 + 1e-6  # motors off in the period the loss is seen
+    assert off[0]["t"] - last_flying["t"] <= 1.0 / 250 + 5e-4  # motors off in the period the loss is seen
     assert 4.0 < off[0]["t"] < 4.0 + 0.1 + 0.05  # seen within the 0.1 s link timeout of the kill
     assert any(b"backend link lost" in data for _, data in logs)
