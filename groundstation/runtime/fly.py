@@ -207,8 +207,8 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
                         truth=world.backend.true_state if world is not None else None, on_status=on_status,
                         activity=activity)
         restore = _install_signals(requests) if handle_signals else None
-        # The Zenoh callback and MCAP writer threads are Python too; by default a thread may hold the GIL for
-        # 5 ms before handing it over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
+        # Background threads are Python too; by default a thread may hold the GIL for 5 ms before handing it
+        # over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
         switch = sys.getswitchinterval()
         sys.setswitchinterval(GIL_SWITCH_S)
         wall0 = time.perf_counter()
