@@ -64,6 +64,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     renderer = threading.Thread(target=render, name="status-line", daemon=True) if live is not None else None
     if live is not None:
         live.start()
+        live.update("[bold]preflight[/]", refresh=True)  # rich's first render is slow: pay it before the flight
         renderer.start()
     try:
         with KeyReader(requests):
