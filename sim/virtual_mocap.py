@@ -65,7 +65,7 @@ class VirtualMocap:
     def _send_loop(self) -> None:
         while not self._closed:
             self._activity.wait_end(0.005)
-            while self._outbox and not self._activity.busy:
+            while self._outbox and self._activity.may_work(3e-4):  # encode + put: ~0.1 ms
                 self._pub.publish(*self._outbox.popleft())
 
     def close(self) -> None:

@@ -50,7 +50,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         while not done.is_set():
             activity.wait_end(STATUS_S)
             s = latest[0]
-            if s is None or s is shown or activity.busy:
+            if s is None or s is shown or not activity.may_work(1e-3):  # a render takes ~0.5 ms
                 continue
             shown = s
             battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""

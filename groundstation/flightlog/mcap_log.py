@@ -39,6 +39,9 @@ from groundstation.runtime.loop import LoopActivity
 CHUNK_BYTES = 32 * 1024
 FLUSH_S = 1.0
 POLL_S = 0.02
+ITEM_BUDGET_S = 4e-4
+"""Idle time the writer wants left before the next control period to start a message (most take < 0.1 ms; a
+message that closes a chunk also compresses and writes it), s."""
 """The writer's wake-up interval when no control loop signals the end of its periods, s."""
 _JSON_SCHEMA = json.dumps({"type": "object"}).encode()
 LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
@@ -145,7 +148,7 @@ class FlightLog:
             while not stopping:
                 self._activity.wait_end(POLL_S)
                 # Between periods only (or once closing): finish the backlog, message by message.
-                while self._items and (not self._activity.busy or self._closed):
+                while self._items and (self._activity.may_work(ITEM_BUDGET_S) or self._closed):
                     item = self._items.popleft()
                     if item[0] == "stop":
                         stopping = True

@@ -280,20 +280,26 @@ class Flight:
         ``realtime`` only records that the caller runs this thread under real-time scheduling."""
         self._stats = LoopStats(1.0 / rate_hz, realtime=realtime)
         step = self.step
-        if self.activity is not None:
+        activity = self.activity
+        if activity is not None:
             def step(k: int, t: float) -> bool:  # background threads wait while a period computes (GIL)
-                self.activity.begin()
+                activity.begin()
                 try:
                     return self.step(k, t)
-                finally:
-                    self.activity.end()
+                except BaseException:
+                    activity.end()
+                    raise
         every = max(1, int(rate_hz * GC_INTERVAL_S))
         pending = [0]
 
-        def between(time_left: float) -> None:  # young-generation GC once a second, in a period's idle time
+        def between(time_left: float) -> None:
+            """Idle time of a period: young-generation GC once a second, then the background threads' turn."""
+            t0 = time.perf_counter()
             pending[0] += 1
             if pending[0] >= every and collect_young(time_left):
                 pending[0] = 0
+            if activity is not None:
+                activity.end(time_left - (time.perf_counter() - t0))
 
         try:
             with collector_paused():
@@ -302,6 +308,8 @@ class Flight:
             self._emergency(self.rec.t[-1] if self.rec.t else 0.0, f"{type(exc).__name__}: {exc}")
             raise
         finally:
+            if activity is not None:
+                activity.end()  # no more periods: background threads may work freely
             if self.phase not in ("done", "emergency"):
                 self._emergency(self.rec.t[-1] if self.rec.t else 0.0, "loop ended")
         if self.log is not None:

@@ -68,6 +68,11 @@ def test_background_thread_waits_for_the_end_of_a_period():
     t0 = time.monotonic()
     activity.wait_end(0.02)  # nobody ends a period: returns after the timeout
     assert time.monotonic() - t0 >= 0.019
+    assert activity.may_work(10.0)  # no loop running: any work fits
+    activity.begin()
+    assert not activity.may_work(0.0)
+    activity.end(0.05)  # the next period starts in 50 ms
+    assert activity.may_work(0.01) and not activity.may_work(0.1)
 
 
 def test_collector_paused_restores_the_collector():
