@@ -85,6 +85,7 @@ class CrazyflieBackend:
         self._battery = np.zeros(n)
         self._gyro = np.zeros((n, 3))
         self._stopped = np.zeros(n, bool)
+        self._stop_sent = False
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -141,6 +142,7 @@ class CrazyflieBackend:
             link.send_packet(CRTPPacket(wire.STOP_HEADER, bytes([wire.CMD_EMERGENCY_STOP])))
         self._send_all(np.zeros_like(self._applied), armed=False)
         self._applied[:] = 0.0
+        self._stop_sent = True
 
     def close(self) -> None:
         for link in self._links:
@@ -181,7 +183,10 @@ class CrazyflieBackend:
                 except ValueError:
                     continue
                 self._heard[i] = now
-                self._applied[4 * i:4 * i + 4] = wire.from_counts(st.counts, self.u_max)
+                # A state sent before the module saw the stop still shows thrust; the stop latches, so only
+                # states that report it say what is applied now.
+                if st.stopped or not self._stop_sent:
+                    self._applied[4 * i:4 * i + 4] = wire.from_counts(st.counts, self.u_max)
                 self._battery[i] = st.battery_v
                 self._gyro[i] = st.gyro
                 self._stopped[i] = st.stopped
