@@ -25,7 +25,7 @@ with quiet_stderr():  # pybullet prints its build date on stderr at import: nois
     import pybullet as pb
 
 from groundstation.assembly.assembly import Assembly
-from groundstation.backends.base import PreflightReport, Telemetry, bounded_command
+from groundstation.backends.base import PreflightReport, Telemetry, applied_command
 from groundstation.control.state import RigidState
 from groundstation.design.task import GRAVITY
 from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
@@ -136,13 +136,7 @@ class PyBulletBackend:
 
     def send(self, u: np.ndarray) -> None:
         """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; ignored unless armed."""
-        u = np.asarray(u, dtype=float)
-        if u.shape != self._u_cmd.shape:
-            raise ValueError(f"expected {self._u_cmd.shape[0]} rotor inputs, got {u.shape}")
-        if not self._armed:
-            self._u_cmd = np.zeros_like(u)
-            return
-        self._u_cmd = bounded_command(u, self.assembly.params.u_max)
+        self._u_cmd = applied_command(u, self._u_cmd.size, self._armed, self.assembly.params.u_max)
 
     def telemetry(self) -> Telemetry:
         gyro = self._state.omega + self._rng.normal(0.0, self.config.gyro_noise, 3)

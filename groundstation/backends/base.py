@@ -42,6 +42,14 @@ def bounded_command(u: np.ndarray, u_max: float) -> np.ndarray:
     return np.minimum(np.maximum(np.where(np.isfinite(u), u, 0.0), 0.0), u_max)  # per period: no np.clip overhead
 
 
+def applied_command(u, size: int, armed: bool, u_max: float) -> np.ndarray:
+    """What a backend applies for a command: ``size`` rotor inputs (else ValueError), bounded, zero unless armed."""
+    u = np.asarray(u, dtype=float)
+    if u.shape != (size,):
+        raise ValueError(f"expected {size} rotor inputs, got {u.shape}")
+    return bounded_command(u, u_max) if armed else np.zeros(size)
+
+
 @runtime_checkable
 class Backend(Protocol):
     def connect(self) -> None: ...

@@ -7,7 +7,7 @@ the control loop needs one small packet per module per period and nothing of the
 download, parameters) on its path. Sending is a socket or USB write on the caller's thread; replies are
 collected by cflib's receive thread and drained without blocking by :meth:`CrazyflieBackend.telemetry`.
 
-Safety at this edge: commands are bounded (``bounded_command``) and carry the armed flag, so a module ignores
+Safety at this edge: commands are bounded (``applied_command``) and carry the armed flag, so a module ignores
 them until armed; :meth:`emergency_stop` sends the supervisor's emergency stop and a disarmed zero command to
 every module; a module whose state has not arrived for ``link_timeout`` makes ``link_ok`` False, and the flight
 stops. The module app has its own staleness timeout, so a ground station that dies stops the motors too.
@@ -20,9 +20,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from cflib.crtp.crtpstack import CRTPPacket
 
 from groundstation.backends import crtp_wire as wire
-from groundstation.backends.base import PreflightReport, Telemetry, bounded_command
+from groundstation.backends.base import PreflightReport, Telemetry, applied_command
 from groundstation.errors import GroundstationError
 
 
@@ -38,7 +39,6 @@ def _link_driver(uri: str, on_error):
     """An open cflib link driver for ``uri`` (cflib's driver list initialised once per process)."""
     global _drivers_initialized
     import cflib.crtp
-    from cflib.crtp.crtpstack import CRTPPacket  # noqa: F401  (imported here so a bad install fails early)
 
     with _drivers_ready:
         if not _drivers_initialized:
@@ -119,10 +119,7 @@ class CrazyflieBackend:
 
     def send(self, u: np.ndarray) -> None:
         """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; modules ignore them unless armed."""
-        u = np.asarray(u, dtype=float)
-        if u.shape != self._applied.shape:
-            raise ValueError(f"expected {self._applied.shape[0]} rotor inputs, got {u.shape}")
-        self._send_all(bounded_command(u, self.u_max) if self._armed else np.zeros_like(u), armed=self._armed)
+        self._send_all(applied_command(u, self._applied.size, self._armed, self.u_max), armed=self._armed)
 
     def telemetry(self) -> Telemetry:
         self._drain()
@@ -136,8 +133,6 @@ class CrazyflieBackend:
     def emergency_stop(self) -> None:
         """Supervisor emergency stop and a disarmed zero command to every module, at once."""
         self._armed = False
-        from cflib.crtp.crtpstack import CRTPPacket
-
         for link in self._links:
             link.send_packet(CRTPPacket(wire.STOP_HEADER, bytes([wire.CMD_EMERGENCY_STOP])))
         self._send_all(np.zeros_like(self._applied), armed=False)
@@ -165,8 +160,6 @@ class CrazyflieBackend:
         return list(self._errors)
 
     def _send_all(self, u: np.ndarray, armed: bool) -> None:
-        from cflib.crtp.crtpstack import CRTPPacket
-
         self._seq = (self._seq + 1) & 0xFF
         for i, link in enumerate(self._links):
             cmd = wire.MotorCommand(self._seq, armed, tuple(wire.to_counts(u[4 * i:4 * i + 4], self.u_max)))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from groundstation.backends.base import PreflightReport, Telemetry, bounded_command
+from groundstation.backends.base import PreflightReport, Telemetry, applied_command
 
 
 class FakeBackend:
@@ -30,10 +30,7 @@ class FakeBackend:
         self._armed = True
 
     def send(self, u: np.ndarray) -> None:
-        u = np.asarray(u, dtype=float)
-        if u.shape != self._u.shape:
-            raise ValueError(f"expected {self._u.shape[0]} rotor inputs, got {u.shape}")
-        self._u = bounded_command(u, self.u_max) if self._armed else np.zeros_like(u)
+        self._u = applied_command(u, self._u.size, self._armed, self.u_max)
         self.commands.append(self._u.copy())
 
     def telemetry(self) -> Telemetry:

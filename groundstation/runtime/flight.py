@@ -264,7 +264,7 @@ class Flight:
                                          "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
                                          "motors": u.reshape(-1, 4) / self.model.u_max, "loop": timing}, tw)
             if len(self.rec.t) % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
-                tel = self.backend.telemetry()
+                tel = telemetry
                 self.log.record("/backend/telemetry", {"t": t, "link_ok": tel.link_ok, "motors": tel.motors,
                                                        "battery_v": tel.battery_v, "gyro": tel.gyro}, tw)
         if self.on_status is not None:
