@@ -158,12 +158,17 @@ def capsule_endpoints(positions, rotations, params: ModuleParams, ops: _Ops = NU
     return ends
 
 
+DEGENERATE_LENGTH = 1e-9
+"""Segments shorter than this are points in :func:`segment_distance`, m."""
+
+
 def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray) -> tuple[float, float, float]:
     """Shortest distance between segments ``p0-p1`` and ``q0-q1`` and the parameters ``s, t`` in [0, 1] of the
-    closest points (numpy; exact, including parallel segments)."""
+    closest points (numpy; exact, including parallel segments). A segment shorter than ``DEGENERATE_LENGTH`` is
+    taken as its point ``p0`` (``q0``), which moves the answer by at most that length."""
     d1, d2, r = p1 - p0, q1 - q0, p0 - q0
     a, e, f = d1 @ d1, d2 @ d2, d2 @ r
-    eps = 1e-18
+    eps = DEGENERATE_LENGTH ** 2
     if a <= eps and e <= eps:  # both segments are points
         return float(np.linalg.norm(r)), 0.0, 0.0
     if a <= eps:

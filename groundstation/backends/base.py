@@ -1,6 +1,6 @@
 """The Backend protocol: what the flight loop needs from modules, simulated or real (commands in, state out).
 
-Implemented by ``sim`` (PyBullet), and later by the Crazyflie and MAVLink backends and an in-package fake.
+Implemented by ``sim`` (PyBullet), the Crazyflie and MAVLink backends, and an in-package fake.
 Motor commands are rotor inputs ``u = Omega^2`` in rad^2/s^2, in assembly rotor order (module-major, q = 1..4);
 a backend converts them to its wire format at its edge and never sends more than ``u_max``.
 """

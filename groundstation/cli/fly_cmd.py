@@ -144,37 +144,46 @@ def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key
 
 @click.command("sim-peer")
 @click.argument("assembly", type=click.Path(dir_okay=False))
+@click.option("--protocol", type=click.Choice(["crtp", "mavlink"]), default="crtp", show_default=True,
+              help="crtp: Crazyflie modules (fly with backend crazyflie); mavlink: PX4 modules in offboard mode "
+                   "(fly with backend mavlink).")
 @click.option("--port", type=int, default=19850, show_default=True,
-              help="UDP port of module 0; module i listens on port + i (fly with udp://127.0.0.1:PORT+i).")
+              help="UDP port of module 0; module i listens on port + i.")
 @click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
               help="Zenoh endpoint the virtual mocap listens on.")
 @click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
 @click.option("--physics-hz", type=float, default=240.0, show_default=True)
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
-def sim_peer_command(assembly: str, port: int, endpoint: str, body: str, physics_hz: float,
+def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, body: str, physics_hz: float,
                      duration: float | None) -> int:
-    """Simulate an assembly's Crazyflie modules on loopback UDP (CRTP) with its pose on Zenoh.
+    """Simulate an assembly's modules behind their wire protocol on loopback UDP, with its pose on Zenoh.
 
-    Fly it with a config whose backend is crazyflie and whose modules are udp://127.0.0.1:PORT, PORT+1, ...
-    SIGINT/SIGTERM stop the simulation.
+    Fly it with a config whose backend is crazyflie (modules udp://127.0.0.1:PORT, PORT+1, ...) or mavlink
+    (modules udpout:127.0.0.1:PORT, PORT+1, ...). SIGINT/SIGTERM stop the simulation.
     """
     import signal
 
     from groundstation.assembly.assembly_file import load_assembly
     from groundstation.mocap.zenoh_link import pose_key
-    from sim.crazyflie_peer import PeerConfig, SimulatedModules
+    from sim.module_peer import PeerConfig
 
+    if protocol == "crtp":
+        from sim.crazyflie_peer import SimulatedCrazyflies as peer_class
+        scheme = "udp://"
+    else:
+        from sim.mavlink_peer import SimulatedPx4 as peer_class
+        scheme = "udpout:"
     asm, _ = load_assembly(assembly)
-    peer = SimulatedModules(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
-                                            physics_hz=physics_hz))
+    peer = peer_class(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
+                                      physics_hz=physics_hz))
     try:
         peer.open()
     except OSError as exc:
         raise UsageError(str(exc)) from None
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: peer.stop_event.set())
-    uris = ", ".join(f"udp://{peer.config.host}:{port + i}" for i in range(asm.n))
-    click.echo(f"simulating {asm.n} modules on {uris}; pose on {endpoint}", err=True)
+    links = ", ".join(f"{scheme}{peer.config.host}:{port + i}" for i in range(asm.n))
+    click.echo(f"simulating {asm.n} modules ({protocol}) on {links}; pose on {endpoint}", err=True)
     try:
         peer.run(duration)
     finally:

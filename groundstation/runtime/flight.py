@@ -171,7 +171,6 @@ class Flight:
         if self.before_period is not None:
             self.before_period(t)
         if k == 0:
-            self.backend.arm()
             self._set_phase(t, "takeoff", "armed")
         if self.requests.stop.is_set():
             self._emergency(t, "operator stop")
@@ -302,6 +301,9 @@ class Flight:
                 activity.end(time_left - (time.perf_counter() - t0))
 
         try:
+            # Arming is a round trip with some backends (MAVLink waits for every module's answer): done before
+            # the first period so that wait is not a late period.
+            self.backend.arm()
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:

@@ -1,9 +1,9 @@
 """Flight configuration files (``configs/flights/*.toml``): everything ``groundstation fly`` needs.
 
 Paths (assembly, log directory) are relative to the config file. Unknown keys are errors that name the file and
-the key path. Backends: ``sim`` (PyBullet in this process, with a virtual mocap) and ``crazyflie`` (one cflib link
-per module: Crazyradio, or UDP to simulated modules from ``groundstation sim-peer``); ``mavlink`` is rejected by
-name.
+the key path. Backends: ``sim`` (PyBullet in this process, with a virtual mocap), ``crazyflie`` (one cflib link
+per module: Crazyradio, or UDP to simulated modules from ``groundstation sim-peer``) and ``mavlink`` (one
+pymavlink connection per PX4 module: serial, UDP, or ``groundstation sim-peer --protocol mavlink``).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from groundstation import config
@@ -21,20 +21,32 @@ _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 @dataclass(frozen=True, config=_STRICT)
 class BackendSection:
-    kind: Literal["sim", "crazyflie"] = "sim"
-    """``sim``: PyBullet in this process. ``crazyflie``: modules over cflib links (see ``modules``)."""
+    kind: Literal["sim", "crazyflie", "mavlink"] = "sim"
+    """``sim``: PyBullet in this process. ``crazyflie``: modules over cflib links; ``mavlink``: PX4 modules over
+    pymavlink connections (see ``modules``)."""
     physics_hz: float = Field(240.0, gt=0)
     """sim only."""
     motor_time_constant: float = Field(0.02, ge=0)
     """sim only, s"""
     modules: tuple[str, ...] = ()
-    """One link per module in assembly order (Crazyflie URIs: ``radio://0/80/2M/E7E7E7E701``, or
-    ``udp://127.0.0.1:19850`` for simulated modules); required for ``crazyflie``, optional for ``sim``. Its length
-    must match the assembly."""
+    """One link per module in assembly order; required for ``crazyflie`` and ``mavlink``, optional for ``sim``.
+    Its length must match the assembly. Crazyflie URIs: ``radio://0/80/2M/E7E7E7E701``, or
+    ``udp://127.0.0.1:19850`` for simulated modules. MAVLink connection strings: ``/dev/ttyACM0,921600``,
+    ``udpin:0.0.0.0:14550``, or ``udpout:127.0.0.1:14560`` for simulated modules."""
     link_timeout_s: float = Field(0.1, gt=0)
-    """crazyflie: a module silent for longer is lost (the flight stops the motors), s."""
+    """crazyflie, mavlink: a module silent for longer is lost (the flight stops the motors), s."""
     min_battery_v: float = Field(3.5, ge=0)
-    """crazyflie: preflight rejects a module below this battery voltage, V."""
+    """crazyflie, mavlink: preflight rejects a module below this battery voltage, V."""
+    pwm_min: int = Field(1000, ge=0)
+    """mavlink: the modules' PWM_MAIN_MIN (zero thrust), us."""
+    pwm_max: int = Field(2000, gt=0)
+    """mavlink: the modules' PWM_MAIN_MAX (full thrust), us."""
+
+    @model_validator(mode="after")
+    def _pwm_ordered(self) -> BackendSection:
+        if self.pwm_max <= self.pwm_min:
+            raise ValueError("pwm_max must be greater than pwm_min")
+        return self
 
 
 @dataclass(frozen=True, config=_STRICT)

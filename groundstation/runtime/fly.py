@@ -3,8 +3,9 @@
 Backends: ``sim`` runs PyBullet inside this process and publishes its physics pose over Zenoh through a virtual
 mocap, so a dry run exercises the same loop, Zenoh path and logging as a flight with real mocap; the simulator is
 advanced to the wall time at the start of every period. ``crazyflie`` drives one cflib link per module (radio
-or UDP) and takes poses from whatever publishes them on Zenoh: a mocap bridge, or ``groundstation sim-peer``,
-which simulates the modules behind their real wire protocol in another process.
+or UDP) and ``mavlink`` one pymavlink connection per PX4 module; both take poses from whatever publishes them on
+Zenoh: a mocap bridge, or ``groundstation sim-peer``, which simulates the modules behind their real wire protocol
+in another process.
 
 Operator: the first Ctrl-C (or SIGTERM) lands, a second one stops the motors at once. Every exit path ends with
 the motors off and the MCAP file finalized.
@@ -29,6 +30,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from groundstation import __version__
 from groundstation.assembly.assembly_file import assembly_record, load_assembly
 from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieLinkError, CrazyflieSettings
+from groundstation.backends.mavlink import MavlinkBackend, MavlinkLinkError, MavlinkSettings
 from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
 from groundstation.control.trajectory import FlightPlan, make_track
@@ -50,8 +52,8 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_paused`` and ``link_lost`` act on the in-process simulator only; with simulated Crazyflie modules,
-    stop the peer process to lose the link."""
+    ``mocap_paused`` and ``link_lost`` act on the in-process simulator only; with simulated Crazyflie or PX4
+    modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
@@ -99,6 +101,16 @@ def code_version() -> str:
     return f"{__version__}" + (f" ({rev})" if rev else "")
 
 
+def _hardware_backend(cfg: FlightConfig, assembly) -> CrazyflieBackend | MavlinkBackend:
+    b = cfg.backend
+    if b.kind == "crazyflie":
+        return CrazyflieBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
+                                CrazyflieSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v))
+    return MavlinkBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
+                          MavlinkSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
+                                          pwm_min=b.pwm_min, pwm_max=b.pwm_max))
+
+
 def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
         requests: Requests | None = None, faults: Faults | None = None,
         on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
@@ -134,8 +146,9 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
 
     from sim.pybullet_backend import resting_height
 
-    if cfg.backend.kind == "crazyflie" and not cfg.backend.modules:
-        raise ConfigError("the crazyflie backend needs one link URI per module", path=src, key="backend.modules")
+    if cfg.backend.kind != "sim" and not cfg.backend.modules:
+        raise ConfigError(f"the {cfg.backend.kind} backend needs one link per module", path=src,
+                          key="backend.modules")
     plan = FlightPlan((0.0, 0.0, resting_height(assembly)), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
     model = ControlModel.from_assembly(assembly)
     volume = FlightVolume(tuple(np.array(policy.geofence_lower) + 0.2), tuple(np.array(policy.geofence_upper) - 0.2))
@@ -155,12 +168,10 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             ours = [m.endpoint] if m.listen else []
             theirs = [] if m.listen else [m.endpoint]
             world = None
-            backend = CrazyflieBackend(cfg.backend.modules, assembly.params.u_max, assembly.module_rotations,
-                                       CrazyflieSettings(link_timeout=cfg.backend.link_timeout_s,
-                                                         min_battery_v=cfg.backend.min_battery_v))
+            backend = _hardware_backend(cfg, assembly)
             try:
                 backend.connect()
-            except CrazyflieLinkError as exc:
+            except (CrazyflieLinkError, MavlinkLinkError) as exc:
                 raise ConfigError(str(exc), path=src, key="backend.modules") from None
             stack.callback(backend.close)
             stack.callback(backend.emergency_stop)  # runs first on the way out: motors off whatever happened

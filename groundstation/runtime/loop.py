@@ -164,6 +164,8 @@ class LoopStats:
     """Time spent in the step function."""
     overruns: int = 0
     """Periods whose step ended after the next deadline."""
+    overrun_starts: list[float] = field(default_factory=list)
+    """Clock time at which each overrunning period started (to line overruns up with other events)."""
     realtime: bool = False
     """The loop thread ran under real-time scheduling."""
 
@@ -174,7 +176,7 @@ class LoopStats:
                 "realtime": self.realtime,
                 "start_error_ms_p50": float(np.percentile(e, 50)), "start_error_ms_p99": float(np.percentile(e, 99)),
                 "start_error_ms_max": float(e.max()), "compute_ms_p50": float(np.percentile(c, 50)),
-                "compute_ms_p99": float(np.percentile(c, 99))}
+                "compute_ms_p99": float(np.percentile(c, 99)), "overrun_starts": list(self.overrun_starts)}
 
 
 def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Clock,
@@ -203,6 +205,7 @@ def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Cl
         k += 1
         if done > t0 + k * period:  # overran: skip to the next deadline still ahead
             stats.overruns += 1
+            stats.overrun_starts.append(start)
             k = int(np.floor((done - t0) / period)) + 1
         if between is not None:
             between(t0 + k * period - clock.now())

@@ -11,7 +11,10 @@ from groundstation.assembly.assembly_file import load_assembly
 from groundstation.backends.base import Backend
 from groundstation.backends.crazyflie import CrazyflieBackend
 from groundstation.backends.fake import FakeBackend
-from sim.crazyflie_peer import PeerConfig, SimulatedModules
+from groundstation.backends.mavlink import MavlinkBackend
+from sim.crazyflie_peer import SimulatedCrazyflies
+from sim.mavlink_peer import SimulatedPx4
+from sim.module_peer import PeerConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
@@ -28,32 +31,46 @@ def make_sim():
     return PyBulletBackend(ASM)
 
 
-class HeldCrazyflie(CrazyflieBackend):
-    """The Crazyflie backend with a test helper: repeat the last command for a while (the modules' watchdog
-    stops the motors when commands stop)."""
+def held(backend_class):
+    """A hardware backend with a test helper: repeat the last command for a while (the modules' watchdogs stop
+    the motors when commands stop)."""
 
-    last = np.zeros(8)
+    class Held(backend_class):
+        last = np.zeros(8)
 
-    def send(self, u):
-        self.last = np.asarray(u, float)
-        super().send(u)
+        def send(self, u):
+            self.last = np.asarray(u, float)
+            super().send(u)
 
-    def settle(self) -> None:
-        end = time.monotonic() + 0.3
-        while time.monotonic() < end:
-            super().send(self.last)
-            time.sleep(0.005)
+        def settle(self) -> None:
+            end = time.monotonic() + 0.3
+            while time.monotonic() < end:
+                super().send(self.last)
+                time.sleep(0.005)
+
+    return Held
 
 
 def make_crazyflie():
-    return HeldCrazyflie([f"udp://127.0.0.1:{19874 + i}" for i in range(ASM.n)], U_MAX, ASM.module_rotations)
+    return held(CrazyflieBackend)([f"udp://127.0.0.1:{19874 + i}" for i in range(ASM.n)], U_MAX,
+                                  ASM.module_rotations)
 
 
-@pytest.fixture(params=[make_fake, make_sim, make_crazyflie], ids=["fake", "pybullet", "crazyflie-udp"])
+def make_mavlink():
+    return held(MavlinkBackend)([f"udpout:127.0.0.1:{14574 + i}" for i in range(ASM.n)], U_MAX,
+                                ASM.module_rotations)
+
+
+PEERS = {make_crazyflie: (SimulatedCrazyflies, 19874), make_mavlink: (SimulatedPx4, 14574)}
+
+
+@pytest.fixture(params=[make_fake, make_sim, make_crazyflie, make_mavlink],
+                ids=["fake", "pybullet", "crazyflie-udp", "mavlink-udp"])
 def backend(request):
     peer = None
-    if request.param is make_crazyflie:
-        peer = SimulatedModules(ASM, PeerConfig(port=19874, mocap_endpoint="tcp/127.0.0.1:7474"))
+    if request.param in PEERS:
+        peer_class, port = PEERS[request.param]
+        peer = peer_class(ASM, PeerConfig(port=port, mocap_endpoint="tcp/127.0.0.1:7474"))
         peer.open()
         th = threading.Thread(target=peer.run, daemon=True)
         th.start()

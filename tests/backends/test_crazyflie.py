@@ -1,49 +1,25 @@
 """The Crazyflie backend through cflib's real UDP link driver, against simulated modules speaking CRTP."""
 
 import struct
-import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 from cflib.crtp.crtpstack import CRTPPacket
 
-from groundstation.assembly.assembly_file import load_assembly
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieLinkError, CrazyflieSettings
-from sim.crazyflie_peer import PeerConfig, SimulatedModules
-
-ROOT = Path(__file__).resolve().parents[2]
-ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
-U_MAX = ASM.params.u_max
+from sim.crazyflie_peer import SimulatedCrazyflies
+from tests import peers
+from tests.peers import ASM, U_MAX, hold, stop_peer
 
 
-def start_peer(port: int, mocap_port: int, **kw) -> tuple[SimulatedModules, threading.Thread]:
-    peer = SimulatedModules(ASM, PeerConfig(port=port, mocap_endpoint=f"tcp/127.0.0.1:{mocap_port}", **kw))
-    peer.open()
-    th = threading.Thread(target=peer.run, daemon=True)
-    th.start()
-    return peer, th
-
-
-def stop_peer(peer, th) -> None:
-    peer.stop_event.set()
-    th.join(5)
-    peer.close()
+def start_peer(port: int, mocap_port: int, **kw):
+    return peers.start_peer(SimulatedCrazyflies, port, mocap_port, **kw)
 
 
 def uris(port: int) -> list[str]:
     return [f"udp://127.0.0.1:{port + i}" for i in range(ASM.n)]
-
-
-def hold(be: CrazyflieBackend, u: np.ndarray, seconds: float) -> None:
-    """Keep sending ``u`` at 200 Hz (the modules' watchdog stops the motors when commands stop)."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        be.send(u)
-        be.telemetry()
-        time.sleep(0.005)
 
 
 def test_wire_format_matches_cflib_and_round_trips():
@@ -74,28 +50,7 @@ def test_commands_reach_the_modules_and_the_state_comes_back():
     peer, th = start_peer(19860, 7471)
     try:
         with CrazyflieBackend(uris(19860), U_MAX, ASM.module_rotations) as be:
-            assert be.preflight().ok
-            be.send(np.full(8, 0.5 * U_MAX))
-            hold(be, np.full(8, 0.5 * U_MAX), 0.3)
-            assert be.telemetry().motors.max() == 0.0  # not armed: the modules ignore it
-            be.arm()
-            cmd = np.array([-1.0, 2 * U_MAX, np.nan, np.inf, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX])
-            hold(be, cmd, 0.4)
-            tel = be.telemetry()
-            assert tel.link_ok and tel.battery_v.tolist() == pytest.approx([4.0, 4.0])
-            np.testing.assert_allclose(tel.motors, [0, U_MAX, 0, 0, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX],
-                                       atol=2e-3 * U_MAX)
-            # The body rate reassembled from the modules' IMUs (each in its own tilted frame) is the body's. The
-            # lopsided command spins the assembly up, and the state is up to one 100 Hz reply old: 5% slack.
-            omega = peer.sim.true_state().omega
-            assert np.linalg.norm(omega) > 0.5
-            np.testing.assert_allclose(tel.gyro, omega, rtol=0.05, atol=0.05)
-            with pytest.raises(ValueError):
-                be.send(np.zeros(5))
-            be.emergency_stop()
-            assert be.telemetry().motors.max() == 0.0  # at once, not after a round trip
-            hold(be, np.full(8, 0.5 * U_MAX), 0.3)
-            assert be.telemetry().motors.max() == 0.0  # disarmed, and the modules latched the stop
+            peers.check_commands_and_state(be, peer)
             assert be.preflight().issues == ("module 0 is emergency-stopped (restart it)",
                                              "module 1 is emergency-stopped (restart it)")
     finally:
@@ -111,14 +66,7 @@ def test_module_watchdog_and_link_loss():
             assert be.telemetry().motors.min() > 0.4 * U_MAX
             time.sleep(0.3)  # the ground station goes silent: each module stops its motors by itself
             assert np.all(peer.sim.telemetry().motors < 0.05 * U_MAX)
-            hold(be, np.full(8, 0.5 * U_MAX), 0.1)
-            assert be.telemetry().link_ok
-            stop_peer(peer, th)  # the modules vanish
-            t0 = time.monotonic()
-            while be.telemetry().link_ok and time.monotonic() - t0 < 1.0:
-                be.send(np.full(8, 0.5 * U_MAX))
-                time.sleep(0.005)
-            assert not be.telemetry().link_ok and time.monotonic() - t0 < 0.1 + 0.05
+            peers.check_link_loss(be, peer, th, 0.1)
     finally:
         stop_peer(peer, th)
 

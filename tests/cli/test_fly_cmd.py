@@ -2,15 +2,19 @@ import json
 import socket
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 ASSEMBLY = str(ROOT / "configs/assemblies/toy_v2.json")
 
 
-def test_sim_peer_runs_and_reports(cli):
-    code, out, err = cli("sim-peer", ASSEMBLY, "--port", "19884", "--mocap", "tcp/127.0.0.1:7477",
-                         "--duration", "0.5")
+@pytest.mark.parametrize("protocol, links", [("crtp", "udp://127.0.0.1:19884, udp://127.0.0.1:19885"),
+                                             ("mavlink", "udpout:127.0.0.1:19884, udpout:127.0.0.1:19885")])
+def test_sim_peer_runs_and_reports(cli, protocol, links):
+    code, out, err = cli("sim-peer", ASSEMBLY, "--protocol", protocol, "--port", "19884",
+                         "--mocap", "tcp/127.0.0.1:7477", "--duration", "0.5")
     assert code == 0, err
-    assert "udp://127.0.0.1:19884, udp://127.0.0.1:19885" in err
+    assert f"({protocol}) on {links}" in err
     report = json.loads(out)
     assert report["packets"] == 0 and abs(report["simulated_s"] - 0.5) < 0.01
 
@@ -27,3 +31,5 @@ def test_sim_peer_bad_assembly(cli, tmp_path):
     bad.write_text("{}")
     code, out, err = cli("sim-peer", str(bad))
     assert code == 2 and str(bad) in err and out == ""
+    code, out, err = cli("sim-peer", ASSEMBLY, "--protocol", "ardupilot")
+    assert code == 2 and "'ardupilot' is not one of 'crtp', 'mavlink'" in err

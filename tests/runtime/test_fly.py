@@ -110,9 +110,10 @@ def test_bad_inputs_never_arm(tmp_path):
     with pytest.raises(ConfigError, match="backend.modules"):
         fly(config_with(tmp_path, **{"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nmodules = ["a"]'}))
     with pytest.raises(ConfigError, match="backend.kind"):
-        fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "mavlink"'}))
-    with pytest.raises(ConfigError, match="backend.modules: the crazyflie backend needs one link URI per module"):
-        fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "crazyflie"'}))
+        fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "ardupilot"'}))
+    for kind in ("crazyflie", "mavlink"):
+        with pytest.raises(ConfigError, match=f"backend.modules: the {kind} backend needs one link per module"):
+            fly(config_with(tmp_path, **{'kind = "sim"': f'kind = "{kind}"'}))
     no_dongle = 'kind = "crazyflie"\nmodules = ["radio://0/80/2M/E7E7E7E701", "radio://0/80/2M/E7E7E7E702"]'
     with pytest.raises(ConfigError, match="backend.modules: cannot open radio://0/80/2M/E7E7E7E701"):
         fly(config_with(tmp_path, **{'kind = "sim"': no_dongle}), log_path=tmp_path / "y.mcap")
@@ -122,32 +123,40 @@ def test_bad_inputs_never_arm(tmp_path):
         fly(config_with(tmp_path, endpoint="tcp/256.0.0.1:1"), log_path=tmp_path / "x.mcap")
 
 
-@pytest.fixture
-def sim_peer(tmp_path):
-    """``groundstation sim-peer`` in its own process, as an operator would start it; yields the flight config."""
+SITL = {"crazyflie": ("toy_figure8_crazyflie_sitl.toml", "crtp", 19850, 19880),
+        "mavlink": ("toy_figure8_mavlink_sitl.toml", "mavlink", 14560, 14580)}
+
+
+@pytest.fixture(params=sorted(SITL))
+def sim_peer(request, tmp_path):
+    """``groundstation sim-peer`` in its own process, as an operator would start it, for each hardware backend;
+    yields the flight config, the peer process and the backend kind."""
     import subprocess
     import sys
     import time
 
-    text = (ROOT / "configs/flights/toy_figure8_crazyflie_sitl.toml").read_text()
+    kind = request.param
+    config_name, protocol, port, test_port = SITL[kind]
+    text = (ROOT / "configs/flights" / config_name).read_text()
     text = text.replace('assembly = "../assemblies/toy_v2.json"',
                         f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
-    text = text.replace("19850", "19880").replace("19851", "19881").replace("7448", "7476")
-    cfg = tmp_path / "cf.toml"
+    text = text.replace(str(port), str(test_port)).replace(str(port + 1), str(test_port + 1)).replace("7448", "7476")
+    cfg = tmp_path / f"{kind}.toml"
     cfg.write_text(text)
     peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
-                             str(ROOT / "configs/assemblies/toy_v2.json"), "--port", "19880",
-                             "--mocap", "tcp/127.0.0.1:7476"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                             str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", protocol,
+                             "--port", str(test_port), "--mocap", "tcp/127.0.0.1:7476"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     time.sleep(2.0)
-    yield cfg, peer
+    yield cfg, peer, kind
     if peer.poll() is None:  # still running: it must stop cleanly on SIGTERM
         peer.terminate()
         out, err = peer.communicate(timeout=10)
         assert peer.returncode == 0, err
 
 
-def test_crazyflie_backend_flight_through_simulated_modules(sim_peer, tmp_path):
-    cfg, _ = sim_peer
+def test_hardware_backend_flight_through_simulated_modules(sim_peer, tmp_path):
+    cfg, _, kind = sim_peer
     log = tmp_path / "cf.mcap"
     statuses = []
     res = fly(cfg, duration=3.0, log_path=log, on_status=statuses.append)
@@ -157,15 +166,15 @@ def test_crazyflie_backend_flight_through_simulated_modules(sim_peer, tmp_path):
     assert max(s.mocap_age for s in track) < 0.25
     assert res.metrics["pos_rmse_m"] < 0.03  # from mocap: no physics truth in this process
     counts, meta, logs, motors = read_log(log)
-    assert json.loads(meta["config"]["value"])["backend"]["kind"] == "crazyflie"
+    assert json.loads(meta["config"]["value"])["backend"]["kind"] == kind
     assert counts["/mocap/assembly"] > 100 * 8 and counts["/backend/telemetry"] > 0
     airborne = [m for _, m in motors if m["phase"] == "track"]
     assert airborne and min(np.mean(m["motors"]) for m in airborne) > 0.2  # hover needs ~0.38 of u_max
     assert motors[-1][1].get("motors_off") and np.max(motors[-1][1]["motors"]) == 0.0
 
 
-def test_crazyflie_link_loss_stops_the_motors(sim_peer, tmp_path):
-    cfg, peer = sim_peer
+def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
+    cfg, peer, _ = sim_peer
     log = tmp_path / "loss.mcap"
     res = fly(cfg, duration=6.0, log_path=log, on_period=lambda t: peer.kill() if t > 4.0 else None)
     assert res.phase == "emergency" and res.reason == "backend link lost"

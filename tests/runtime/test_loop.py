@@ -42,6 +42,7 @@ def test_deadlines_overruns_and_between():
     assert [k for k, _ in starts] == [0, 1, 2, 3, 6, 7, 8]
     assert [t for _, t in starts] == [0.0, 0.01, 0.02, 0.03, 0.06, 0.07, 0.08]
     assert stats.overruns == 1 and len(stats.compute) == 7
+    assert stats.overrun_starts == [pytest.approx(100.03)]  # clock time, not loop time
     assert stats.compute[3] == pytest.approx(0.025)
     assert left[:3] == [0.009, 0.009, 0.009] and left[3] == pytest.approx(0.005)  # to 0.06 from 0.055
     s = stats.summary()

@@ -1,0 +1,285 @@
+"""PX4 modules over MAVLink (pymavlink): one link per module, rotor commands as offboard actuator controls.
+
+Each module runs PX4 <= 1.13 with the pass-through mixer and parameters in ``firmware_params/px4/``;
+:mod:`groundstation.backends.mavlink_wire` holds the conventions. A link is a pymavlink connection string
+(``udpout:127.0.0.1:14560`` for a simulated module from ``groundstation sim-peer --protocol mavlink``,
+``/dev/ttyACM0,921600`` for a serial telemetry radio, ``udpin:0.0.0.0:14550`` for a vehicle that sends first).
+The vehicle's system id is learnt from its first heartbeat. Sending is a socket (or serial) write on the caller's
+thread; :meth:`MavlinkBackend.telemetry` parses what has arrived without blocking.
+
+Safety at this edge: commands are bounded (``applied_command``); nothing spins before :meth:`arm`, which switches
+every module to offboard and arms it, and fails (motors commanded off) unless every module confirms;
+:meth:`emergency_stop` force-disarms and terminates every module; a module silent for ``link_timeout``, or one
+that disarmed on its own while the flight needs it (offboard loss, a failsafe), makes ``link_ok`` False, and the
+flight stops. On the vehicle, offboard loss after ``COM_OF_LOSS_T`` stops the motors if the ground station dies.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink import mavutil
+
+from groundstation.backends import mavlink_wire as mw
+from groundstation.backends.base import PreflightReport, Telemetry, applied_command
+from groundstation.errors import GroundstationError
+
+mav = mavutil.mavlink
+
+
+class MavlinkLinkError(GroundstationError):
+    """A module's MAVLink connection could not be opened."""
+
+
+class MavlinkArmError(GroundstationError):
+    """A module did not switch to offboard or did not arm."""
+
+
+@dataclass(frozen=True)
+class MavlinkSettings:
+    link_timeout: float = 0.2
+    """A module with no telemetry for this long is lost, s (telemetry is requested at ``telemetry_hz``)."""
+    min_battery_v: float = 3.5
+    """Preflight: lowest acceptable battery voltage, V (as the vehicle reports it)."""
+    preflight_timeout: float = 2.0
+    """Preflight: how long to wait for every module's heartbeat and telemetry, s."""
+    arm_timeout: float = 1.0
+    """How long :meth:`MavlinkBackend.arm` waits for every module to confirm offboard and armed, s."""
+    telemetry_hz: float = 100.0
+    """Rate requested for ATTITUDE (gyro) and SERVO_OUTPUT_RAW (applied motors), Hz."""
+    pwm_min: int = 1000
+    """us: PWM_MAIN_MIN of the modules (the mixer's output for a zero command)."""
+    pwm_max: int = 2000
+    """us: PWM_MAIN_MAX of the modules (full thrust)."""
+
+
+HEARTBEAT_S = 1.0
+"""Ground-station heartbeat interval, s (PX4's data-link loss check listens for it)."""
+SETPOINT_LEAD_S = 1.0
+"""Zero setpoints streamed before the switch to offboard, s: PX4 refuses offboard without a setpoint stream, and
+its documentation (v1.14 on) asks for more than 1 s of it before arming in offboard."""
+
+
+class _Module:
+    def __init__(self, conn) -> None:
+        self.conn = conn
+        self.system_id: int | None = None
+        """Learnt from the first autopilot heartbeat."""
+        self.component_id = mav.MAV_COMP_ID_AUTOPILOT1
+        self.heard = -np.inf
+        self.armed = False
+        self.offboard = False
+        self.terminated = False
+        self.acks: dict[int, int] = {}
+        """Last COMMAND_ACK result per command id."""
+        self.stop_acked = False
+
+
+class MavlinkBackend:
+    """``n`` PX4 modules of one assembly, in assembly order (module i drives rotors 4i..4i+3)."""
+
+    def __init__(self, links: list[str] | tuple[str, ...], u_max: float, module_rotations: np.ndarray,
+                 settings: MavlinkSettings | None = None, clock=time.monotonic) -> None:
+        if len(links) != len(module_rotations):
+            raise ValueError(f"{len(links)} links for {len(module_rotations)} modules")
+        self.links = tuple(links)
+        self.u_max = u_max
+        self.settings = settings or MavlinkSettings()
+        self._rotations = np.asarray(module_rotations, float)
+        self._clock = clock
+        self._modules: list[_Module] = []
+        n = len(links)
+        self._armed = False
+        self._applied = np.zeros(4 * n)
+        self._battery = np.zeros(n)
+        self._gyro = np.zeros((n, 3))
+        self._stop_sent = False
+        self._last_heartbeat = -np.inf
+
+    # -- Backend protocol ---------------------------------------------------------------------------------------
+    def connect(self) -> None:
+        if self._modules:
+            return
+        for link in self.links:
+            try:
+                conn = mavutil.mavlink_connection(link, source_system=mw.GCS_SYSTEM_ID,
+                                                  source_component=mw.GCS_COMPONENT_ID)
+            except Exception as exc:  # pymavlink raises per transport (serial, socket, bad string)
+                self.close()
+                raise MavlinkLinkError(f"cannot open {link}: {exc}") from None
+            self._modules.append(_Module(conn))
+        self._heartbeat(force=True)
+
+    def preflight(self) -> PreflightReport:
+        if not self._modules:
+            return PreflightReport(False, ("not connected",))
+        since = self._clock()
+        deadline = since + self.settings.preflight_timeout
+        requested = [False] * len(self._modules)
+        # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
+        while self._clock() < deadline and not all(m.heard >= since and np.isfinite(m.heard) and r
+                                                   for m, r in zip(self._modules, requested, strict=True)):
+            self._heartbeat(force=True)
+            self._send_controls(np.zeros_like(self._applied))
+            time.sleep(0.01)
+            self._drain()
+            for i, m in enumerate(self._modules):
+                if m.system_id is not None and not requested[i]:
+                    self._request_streams(m)
+                    requested[i] = True
+        issues = [f"module {i} ({self.links[i]}) does not answer" for i, m in enumerate(self._modules)
+                  if m.system_id is None or m.heard < since]
+        issues += [f"module {i} battery {v:.2f} V < {self.settings.min_battery_v:g} V"
+                   for i, v in enumerate(self._battery)
+                   if self._modules[i].heard >= since and v < self.settings.min_battery_v]
+        issues += [f"module {i} is flight-terminated (reboot it)" for i, m in enumerate(self._modules) if m.terminated]
+        issues += [f"module {i} is already armed" for i, m in enumerate(self._modules) if m.armed]
+        return PreflightReport(not issues, tuple(issues))
+
+    def arm(self) -> None:
+        """Switch every module to offboard and arm it; raises MavlinkArmError (motors off) unless all confirm."""
+        deadline = self._clock() + self.settings.arm_timeout
+        while self._clock() < deadline and any(m.system_id is None for m in self._modules):
+            self._heartbeat(force=True)  # a module learns where we are from our first packet
+            time.sleep(0.005)
+            self._drain()
+        for i, m in enumerate(self._modules):
+            if m.system_id is None:
+                raise MavlinkArmError(f"module {i} ({self.links[i]}): no heartbeat within "
+                                      f"{self.settings.arm_timeout:g} s")
+        lead_end = self._clock() + SETPOINT_LEAD_S
+        while self._clock() < lead_end:  # PX4 enters offboard only once setpoints stream
+            self._send_controls(np.zeros_like(self._applied))
+            time.sleep(0.01)
+        for m in self._modules:
+            m.acks.clear()
+            self._command(m, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                          mw.PX4_MAIN_MODE_OFFBOARD)
+        self._await(mav.MAV_CMD_DO_SET_MODE, "switch to offboard")
+        for m in self._modules:
+            self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+        self._await(mav.MAV_CMD_COMPONENT_ARM_DISARM, "arm")
+        self._armed = True
+
+    def send(self, u: np.ndarray) -> None:
+        """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; zero unless armed."""
+        self._send_controls(applied_command(u, self._applied.size, self._armed, self.u_max))
+        self._heartbeat()
+
+    def telemetry(self) -> Telemetry:
+        self._drain()
+        now = self._clock()
+        fresh = all(now - m.heard <= self.settings.link_timeout for m in self._modules)
+        # A module that disarmed itself (offboard loss, a failsafe) no longer flies: the flight must stop.
+        holding = not self._armed or all(m.armed for m in self._modules)
+        # The modules are rigidly joined: each measures the body rate in its own frame.
+        gyro = np.mean(np.einsum("nij,nj->ni", self._rotations, self._gyro), axis=0)
+        heard = max((m.heard for m in self._modules), default=-np.inf)
+        return Telemetry(stamp=float(heard) if np.isfinite(heard) else 0.0,
+                         link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
+                         battery_v=self._battery.copy(), gyro=gyro)
+
+    def emergency_stop(self) -> None:
+        """Force-disarm and terminate every module, and command zero, at once (no waiting for answers)."""
+        self._armed = False
+        self._stop_sent = True
+        for m in self._modules:
+            m.stop_acked = False
+            self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, mw.FORCE_DISARM)
+            self._command(m, mav.MAV_CMD_DO_FLIGHTTERMINATION, 1.0)
+        self._send_controls(np.zeros_like(self._applied))
+        self._applied[:] = 0.0
+
+    def close(self) -> None:
+        for m in self._modules:
+            m.conn.close()
+        self._modules = []
+
+    def __enter__(self) -> MavlinkBackend:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._modules:
+            self.emergency_stop()
+        self.close()
+
+    # -- wire ---------------------------------------------------------------------------------------------------
+    def _heartbeat(self, force: bool = False) -> None:
+        now = self._clock()
+        if not force and now - self._last_heartbeat < HEARTBEAT_S:
+            return
+        self._last_heartbeat = now
+        for m in self._modules:
+            m.conn.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+
+    def _send_controls(self, u: np.ndarray) -> None:
+        t_us = int(self._clock() * 1e6)
+        for i, m in enumerate(self._modules):
+            if m.system_id is None:
+                continue  # not heard yet: nothing to address (and nothing armed)
+            m.conn.mav.set_actuator_control_target_send(t_us, mw.ACTUATOR_GROUP, m.system_id, m.component_id,
+                                                        mw.to_controls(u[4 * i:4 * i + 4], self.u_max))
+
+    def _command(self, m: _Module, command: int, *params: float) -> None:
+        p = (list(params) + [0.0] * 7)[:7]
+        m.conn.mav.command_long_send(m.system_id or 0, m.component_id, command, 0, *p)
+
+    def _request_streams(self, m: _Module) -> None:
+        interval_us = 1e6 / self.settings.telemetry_hz
+        for msg_id in (mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW):
+            self._command(m, mav.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, interval_us)
+
+    def _await(self, command: int, what: str) -> None:
+        """Wait for every module's COMMAND_ACK of ``command`` (keeping setpoints and heartbeats flowing)."""
+        deadline = self._clock() + self.settings.arm_timeout
+        while self._clock() < deadline and not all(command in m.acks for m in self._modules):
+            self._send_controls(np.zeros_like(self._applied))
+            self._heartbeat()
+            time.sleep(0.005)
+            self._drain()
+        for i, m in enumerate(self._modules):
+            if command not in m.acks:
+                raise MavlinkArmError(f"module {i} ({self.links[i]}): no answer to '{what}' within "
+                                      f"{self.settings.arm_timeout:g} s")
+            if m.acks[command] != mav.MAV_RESULT_ACCEPTED:
+                result = mav.enums["MAV_RESULT"][m.acks[command]].name
+                raise MavlinkArmError(f"module {i} ({self.links[i]}) refused to {what}: {result}")
+
+    def _drain(self) -> None:
+        now = self._clock()
+        s = self.settings
+        for i, m in enumerate(self._modules):
+            while (msg := m.conn.recv_match(blocking=False)) is not None:
+                kind = msg.get_type()
+                if kind == "BAD_DATA" or (m.system_id is not None and msg.get_srcSystem() != m.system_id):
+                    continue
+                if kind == "HEARTBEAT":
+                    if msg.type == mav.MAV_TYPE_GCS or msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
+                        continue  # another ground station or a peripheral, not the module's autopilot
+                    m.system_id, m.component_id = msg.get_srcSystem(), msg.get_srcComponent()
+                    m.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+                    m.offboard = msg.custom_mode == mw.PX4_OFFBOARD_CUSTOM_MODE
+                    m.terminated = msg.system_status == mav.MAV_STATE_FLIGHT_TERMINATION
+                elif m.system_id is None:
+                    continue  # until the autopilot's heartbeat says who the module is
+                elif kind == "COMMAND_ACK":
+                    m.acks[msg.command] = msg.result
+                    if msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+                        m.armed = msg.result == mav.MAV_RESULT_ACCEPTED and not self._stop_sent
+                        m.stop_acked = m.stop_acked or self._stop_sent
+                elif kind == "ATTITUDE":
+                    self._gyro[i] = mw.FRD_TO_FLU @ np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
+                elif kind == "SERVO_OUTPUT_RAW":
+                    # Outputs sent before the module saw the stop still show thrust; the disarm's ACK comes
+                    # after them on the same link, so only later outputs say what is applied now.
+                    if not self._stop_sent or m.stop_acked:
+                        pwm = (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw)
+                        self._applied[4 * i:4 * i + 4] = mw.from_pwm(pwm, self.u_max, s.pwm_min, s.pwm_max)
+                elif kind == "SYS_STATUS":
+                    self._battery[i] = msg.voltage_battery * 1e-3
+                else:
+                    continue
+                m.heard = now

@@ -1,0 +1,56 @@
+"""MAVLink conventions between the ground station and one module running PX4 (<= 1.13) with a pass-through mixer.
+
+PX4 >= 1.14 removed per-actuator offboard control over MAVLink (``SET_ACTUATOR_CONTROL_TARGET``); PX4 <= 1.13,
+and firmware that still honours that message, take it in offboard mode. Each module loads
+``firmware_params/px4/passthrough_quad.main.mix``, which routes group-0 control q (q = 0..3) straight to main
+output q, so the four controls are the module's four rotor commands (see ``firmware_params/README.md``).
+
+* Motor command, ground -> module: ``SET_ACTUATOR_CONTROL_TARGET`` (group 0), ``controls[q] = u_q / u_max`` in
+  [0, 1] for the module's rotors q = 1..4, the other four controls 0. The mixer maps [0, 1] onto the full PWM
+  range, so commanded PWM = ``pwm_min + controls[q] * (pwm_max - pwm_min)``.
+* Applied motors, module -> ground: ``SERVO_OUTPUT_RAW`` (PWM in microseconds), mapped back with the same range.
+* Body rate: ``ATTITUDE`` rollspeed/pitchspeed/yawspeed, rad/s, in PX4's body frame FRD (x forward, y right,
+  z down); the assembly's module frames are FLU (z up, along the thrust), so y and z change sign.
+* Battery: ``SYS_STATUS.voltage_battery``, mV.
+* Arming: ``MAV_CMD_DO_SET_MODE`` to offboard (PX4 accepts it only while setpoints stream), then
+  ``MAV_CMD_COMPONENT_ARM_DISARM``; each answered by ``COMMAND_ACK``; ``HEARTBEAT.base_mode`` reports armed.
+* Emergency stop: ``MAV_CMD_COMPONENT_ARM_DISARM`` with param2 = 21196 (disarm even in flight), then
+  ``MAV_CMD_DO_FLIGHTTERMINATION`` (latches until reboot, like the Crazyflie supervisor's stop).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+PX4_MAIN_MODE_OFFBOARD = 6
+"""PX4 custom main mode number of offboard."""
+PX4_OFFBOARD_CUSTOM_MODE = PX4_MAIN_MODE_OFFBOARD << 16
+"""``HEARTBEAT.custom_mode`` of a PX4 vehicle in offboard (main mode in bits 16-23)."""
+FORCE_DISARM = 21196.0
+"""``MAV_CMD_COMPONENT_ARM_DISARM`` param2 that disarms even in flight."""
+GCS_SYSTEM_ID = 255
+GCS_COMPONENT_ID = 190
+"""MAV_COMP_ID_MISSIONPLANNER, the usual ground-station component."""
+ACTUATOR_GROUP = 0
+FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])
+"""Maps a vector from PX4's FRD body frame to the module's FLU frame (its own inverse)."""
+
+
+def to_controls(u: np.ndarray, u_max: float) -> list[float]:
+    """Four rotor inputs (rad^2/s^2) -> the eight group-0 controls: u / u_max in [0, 1], then four zeros."""
+    return [min(max(float(v) / u_max, 0.0), 1.0) for v in u] + [0.0] * 4
+
+
+def from_controls(controls, u_max: float) -> np.ndarray:
+    """The first four group-0 controls -> rotor inputs, rad^2/s^2 (clamped to [0, u_max])."""
+    return np.clip(np.asarray(controls[:4], float), 0.0, 1.0) * u_max
+
+
+def to_pwm(u: np.ndarray, u_max: float, pwm_min: int, pwm_max: int) -> list[int]:
+    """Rotor inputs -> the PWM the pass-through mixer outputs, us."""
+    return [int(round(pwm_min + c * (pwm_max - pwm_min))) for c in to_controls(u, u_max)[:4]]
+
+
+def from_pwm(pwm, u_max: float, pwm_min: int, pwm_max: int) -> np.ndarray:
+    """PWM outputs (us) -> rotor inputs, rad^2/s^2; at or below ``pwm_min`` (or a disarmed 0) is no thrust."""
+    return np.clip((np.asarray(pwm, float) - pwm_min) / (pwm_max - pwm_min), 0.0, 1.0) * u_max

@@ -1,0 +1,147 @@
+"""Simulated PX4 modules on loopback: PyBullet physics behind MAVLink, as PX4 <= 1.13 in offboard mode speaks it.
+
+Each module is one vehicle (system id ``i + 1``, autopilot component 1) on its own UDP port, spoken to by pymavlink
+on both ends, and follows :mod:`groundstation.backends.mavlink_wire`: it takes ``SET_ACTUATOR_CONTROL_TARGET``
+through a pass-through mixer, accepts offboard mode only while setpoints stream (as PX4 does), arms only in
+offboard, answers every ``COMMAND_LONG`` with ``COMMAND_ACK``, disarms on offboard loss after
+``command_timeout`` (``COM_OF_LOSS_T`` with a disarm action), and latches flight termination. It streams
+``HEARTBEAT`` (1 Hz), ``SYS_STATUS`` (10 Hz), ``ATTITUDE`` and ``SERVO_OUTPUT_RAW`` (``state_rate_hz``, or what
+``MAV_CMD_SET_MESSAGE_INTERVAL`` asks for):
+
+    groundstation sim-peer configs/assemblies/toy_v2.json --protocol mavlink --port 14560
+
+Module i listens on ``udpin:127.0.0.1:<port + i>``; the ground station connects with ``udpout:``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+from pymavlink import mavutil
+
+from groundstation.backends import mavlink_wire as mw
+from groundstation.control.trajectory import roll_pitch_yaw
+from sim.module_peer import ModulePeer
+
+mav = mavutil.mavlink
+PWM_MIN, PWM_MAX = 1000, 2000
+"""us: the PWM range of the simulated modules (PWM_MAIN_MIN/MAX)."""
+PWM_DISARMED = 900
+"""us: what PX4 outputs while disarmed (PWM_MAIN_DISARM)."""
+SETPOINT_STREAM_S = 0.5
+"""Offboard is refused unless a setpoint arrived within this long, s (PX4 wants a stream before the switch)."""
+HEARTBEAT_S = 1.0
+SYS_STATUS_S = 0.1
+
+
+class _Vehicle:
+    def __init__(self, conn, system_id: int, state_interval: float) -> None:
+        self.conn = conn
+        self.system_id = system_id
+        self.offboard = False
+        self.last_setpoint = -np.inf
+        self.heard = False
+        """The ground station has spoken (udpin only knows where to reply after that)."""
+        self.intervals = {mav.MAVLINK_MSG_ID_ATTITUDE: state_interval,
+                          mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: state_interval,
+                          mav.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_S,
+                          mav.MAVLINK_MSG_ID_SYS_STATUS: SYS_STATUS_S}
+        self.last_sent = dict.fromkeys(self.intervals, -np.inf)
+
+
+class SimulatedPx4(ModulePeer):
+    """PX4 modules in offboard mode with a pass-through mixer, one MAVLink link (UDP port) each."""
+
+    protocol = "mavlink"
+
+    def _open_links(self) -> None:
+        c = self.config
+        self._vehicles: list[_Vehicle] = []
+        for i in range(self.assembly.n):
+            conn = mavutil.mavlink_connection(f"udpin:{c.host}:{c.port + i}", source_system=i + 1,
+                                              source_component=mav.MAV_COMP_ID_AUTOPILOT1)
+            self._vehicles.append(_Vehicle(conn, i + 1, 1.0 / c.state_rate_hz))
+
+    def _close_links(self) -> None:
+        for v in getattr(self, "_vehicles", []):
+            v.conn.close()
+        self._vehicles = []
+
+    def _serve(self, now: float) -> None:
+        for i, (v, m) in enumerate(zip(self._vehicles, self.modules, strict=True)):
+            while (msg := v.conn.recv_match(blocking=False)) is not None:
+                self.packets += 1
+                v.heard = True
+                self._handle(v, m, msg, now)
+            if m.armed and now - m.last_command > self.config.command_timeout:
+                v.offboard = False  # offboard loss: the rules below disarm; PX4 leaves offboard too
+            if v.heard:
+                with contextlib.suppress(OSError):  # the ground station went away: offboard loss stops the motors
+                    self._stream(i, v, m, now)
+
+    def _handle(self, v: _Vehicle, m, msg, now: float) -> None:
+        kind = msg.get_type()
+        if kind == "SET_ACTUATOR_CONTROL_TARGET":
+            if msg.target_system != v.system_id or msg.group_mlx != mw.ACTUATOR_GROUP:
+                return
+            v.last_setpoint = now
+            if v.offboard:
+                m.command(mw.from_controls(msg.controls, self.assembly.params.u_max), now)
+        elif kind == "COMMAND_LONG" and msg.target_system == v.system_id:
+            v.conn.mav.command_ack_send(msg.command, self._command(v, m, msg, now))
+
+    def _command(self, v: _Vehicle, m, msg, now: float) -> int:
+        """Carry out one COMMAND_LONG; returns the MAV_RESULT."""
+        if msg.command == mav.MAV_CMD_DO_SET_MODE:
+            if int(msg.param2) != mw.PX4_MAIN_MODE_OFFBOARD:
+                v.offboard = False
+                return mav.MAV_RESULT_ACCEPTED
+            if now - v.last_setpoint > SETPOINT_STREAM_S or m.stopped:
+                return mav.MAV_RESULT_TEMPORARILY_REJECTED
+            v.offboard = True
+            return mav.MAV_RESULT_ACCEPTED
+        if msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            if msg.param1 < 0.5:
+                m.arm(False)
+                return mav.MAV_RESULT_ACCEPTED
+            if m.stopped or not v.offboard:
+                return mav.MAV_RESULT_DENIED
+            m.arm(True)
+            m.last_command = now  # arming starts the offboard-loss clock
+            return mav.MAV_RESULT_ACCEPTED
+        if msg.command == mav.MAV_CMD_DO_FLIGHTTERMINATION:
+            if msg.param1 > 0.5:
+                m.emergency_stop()
+                v.offboard = False
+            return mav.MAV_RESULT_ACCEPTED
+        if msg.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            msg_id, interval_us = int(msg.param1), msg.param2
+            if msg_id not in v.intervals or interval_us <= 0:
+                return mav.MAV_RESULT_DENIED
+            v.intervals[msg_id] = interval_us * 1e-6
+            return mav.MAV_RESULT_ACCEPTED
+        return mav.MAV_RESULT_UNSUPPORTED
+
+    def _stream(self, i: int, v: _Vehicle, m, now: float) -> None:
+        due = [k for k, dt in v.intervals.items() if now - v.last_sent[k] >= dt]
+        for k in due:
+            v.last_sent[k] = now
+        t_us, t_ms = int(now * 1e6), int(now * 1e3) & 0xFFFFFFFF
+        send = v.conn.mav
+        if mav.MAVLINK_MSG_ID_HEARTBEAT in due:
+            base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if m.armed else 0)
+            status = (mav.MAV_STATE_FLIGHT_TERMINATION if m.stopped
+                      else mav.MAV_STATE_ACTIVE if m.armed else mav.MAV_STATE_STANDBY)
+            send.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base,
+                                mw.PX4_OFFBOARD_CUSTOM_MODE if v.offboard else 0, status)
+        if mav.MAVLINK_MSG_ID_SYS_STATUS in due:
+            send.sys_status_send(0, 0, 0, 0, int(self.config.battery_v * 1e3), -1, -1, 0, 0, 0, 0, 0, 0)
+        if mav.MAVLINK_MSG_ID_ATTITUDE in due:
+            rotation = self.sim.true_state().rotation @ self.assembly.module_rotations[i]
+            w = mw.FRD_TO_FLU @ self.module_gyro(i)
+            send.attitude_send(t_ms, *roll_pitch_yaw(rotation), *(float(x) for x in w))
+        if mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW in due:
+            pwm = (mw.to_pwm(self.module_motors(i), self.assembly.params.u_max, PWM_MIN, PWM_MAX) if m.armed
+                   else [PWM_DISARMED] * 4)
+            send.servo_output_raw_send(t_us & 0xFFFFFFFF, 0, *pwm, 0, 0, 0, 0)

@@ -1,0 +1,169 @@
+"""The MAVLink backend through pymavlink's UDP connections, against simulated PX4 modules speaking MAVLink."""
+
+import time
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink2
+
+from groundstation.backends import mavlink_wire as mw
+from groundstation.backends.mavlink import MavlinkArmError, MavlinkBackend, MavlinkLinkError, MavlinkSettings
+from sim.mavlink_peer import SimulatedPx4
+from tests import peers
+from tests.peers import ASM, U_MAX, hold, stop_peer
+
+
+def start_peer(port: int, mocap_port: int, **kw):
+    return peers.start_peer(SimulatedPx4, port, mocap_port, **kw)
+
+
+def links(port: int) -> list[str]:
+    return [f"udpout:127.0.0.1:{port + i}" for i in range(ASM.n)]
+
+
+def test_wire_conventions():
+    u = np.array([0.0, U_MAX / 3, U_MAX, 2 * U_MAX])
+    controls = mw.to_controls(u, U_MAX)
+    assert len(controls) == 8 and controls[4:] == [0.0] * 4
+    np.testing.assert_allclose(controls[:4], [0.0, 1 / 3, 1.0, 1.0])
+    np.testing.assert_allclose(mw.from_controls(controls, U_MAX), [0.0, U_MAX / 3, U_MAX, U_MAX])
+    pwm = mw.to_pwm(u, U_MAX, 1000, 2000)
+    assert pwm == [1000, 1333, 2000, 2000]
+    np.testing.assert_allclose(mw.from_pwm(pwm, U_MAX, 1000, 2000), [0, U_MAX / 3, U_MAX, U_MAX], atol=U_MAX / 1000)
+    assert mw.from_pwm([900, 0, 1000, 2100], U_MAX, 1000, 2000).tolist() == [0.0, 0.0, 0.0, U_MAX]
+    # PX4's custom mode for offboard: main mode 6 in bits 16-23 (px4_custom_mode.h)
+    assert mw.PX4_OFFBOARD_CUSTOM_MODE == 0x00060000
+    # FRD -> FLU is a proper rotation (pi about x), its own inverse
+    assert np.linalg.det(mw.FRD_TO_FLU) == 1.0 and np.array_equal(mw.FRD_TO_FLU @ mw.FRD_TO_FLU, np.eye(3))
+
+
+def test_actuator_message_survives_the_wire():
+    """SET_ACTUATOR_CONTROL_TARGET as packed by pymavlink (MAVLink 2) decodes to the controls we sent."""
+    enc = mavlink2.MAVLink(None, srcSystem=mw.GCS_SYSTEM_ID, srcComponent=mw.GCS_COMPONENT_ID)
+    controls = mw.to_controls(np.array([0.1, 0.2, 0.3, 0.4]) * U_MAX, U_MAX)
+    raw = enc.set_actuator_control_target_encode(123, mw.ACTUATOR_GROUP, 2, 1, controls).pack(enc)
+    msg = mavlink2.MAVLink(None).parse_char(raw)
+    assert msg.get_type() == "SET_ACTUATOR_CONTROL_TARGET" and msg.target_system == 2 and msg.group_mlx == 0
+    np.testing.assert_allclose(msg.controls[:4], [0.1, 0.2, 0.3, 0.4], rtol=1e-6)
+
+
+def test_commands_reach_the_modules_and_the_state_comes_back():
+    peer, th = start_peer(14600, 7481)
+    try:
+        with MavlinkBackend(links(14600), U_MAX, ASM.module_rotations) as be:
+            peers.check_commands_and_state(be, peer)  # ATTITUDE rates arrive in PX4's FRD frame
+            assert be.preflight().issues == ("module 0 is flight-terminated (reboot it)",
+                                             "module 1 is flight-terminated (reboot it)")
+            with pytest.raises(MavlinkArmError, match="module 0 .* refused to switch to offboard"):
+                be.arm()  # termination latches
+    finally:
+        stop_peer(peer, th)
+
+
+def test_offboard_loss_disarms_the_modules_and_ends_the_flight():
+    peer, th = start_peer(14604, 7482)
+    try:
+        with MavlinkBackend(links(14604), U_MAX, ASM.module_rotations, MavlinkSettings(link_timeout=0.1)) as be:
+            be.arm()
+            hold(be, np.full(8, 0.5 * U_MAX), 0.3)
+            assert be.telemetry().motors.min() > 0.4 * U_MAX and be.telemetry().link_ok
+            time.sleep(0.3)  # the ground station goes silent: each module disarms by itself (offboard loss)
+            assert np.all(peer.sim.telemetry().motors < 0.05 * U_MAX)
+            assert not any(m.armed for m in peer.modules)
+            # The next heartbeat (<= 1 s) says so, and the flight must not go on with disarmed modules.
+            t0 = time.monotonic()
+            while be.telemetry().link_ok and time.monotonic() - t0 < 1.5:
+                be.send(np.full(8, 0.5 * U_MAX))
+                time.sleep(0.005)
+            assert not be.telemetry().link_ok
+    finally:
+        stop_peer(peer, th)
+
+
+def test_link_loss():
+    peer, th = start_peer(14606, 7485)
+    try:
+        with MavlinkBackend(links(14606), U_MAX, ASM.module_rotations, MavlinkSettings(link_timeout=0.1)) as be:
+            be.arm()
+            peers.check_link_loss(be, peer, th, 0.1)
+    finally:
+        stop_peer(peer, th)
+
+
+def test_vehicle_refuses_offboard_without_a_setpoint_stream():
+    """What PX4 does, and why arm() streams setpoints first: a bare mode switch is rejected."""
+    peer, th = start_peer(14610, 7483)
+    try:
+        gcs = mavutil.mavlink_connection("udpout:127.0.0.1:14610", source_system=mw.GCS_SYSTEM_ID,
+                                         source_component=mw.GCS_COMPONENT_ID)
+        try:
+            gcs.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=2.0).get_srcSystem() == 1
+            gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 0, 1, mw.PX4_MAIN_MODE_OFFBOARD,
+                                      0, 0, 0, 0, 0)
+            ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=2.0)
+            assert ack.command == mavutil.mavlink.MAV_CMD_DO_SET_MODE
+            assert ack.result == mavutil.mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+            gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=2.0)
+            assert ack.result == mavutil.mavlink.MAV_RESULT_DENIED and not peer.modules[0].armed
+        finally:
+            gcs.close()
+    finally:
+        stop_peer(peer, th)
+
+
+def test_preflight_and_arm_name_silent_and_weak_modules():
+    settings = MavlinkSettings(preflight_timeout=0.3, arm_timeout=0.3)
+    with MavlinkBackend(links(14616), U_MAX, ASM.module_rotations, settings) as be:
+        assert be.preflight().issues == ("module 0 (udpout:127.0.0.1:14616) does not answer",
+                                         "module 1 (udpout:127.0.0.1:14617) does not answer")
+        with pytest.raises(MavlinkArmError, match=r"module 0 \(udpout:127.0.0.1:14616\): no heartbeat within 0.3 s"):
+            be.arm()
+    peer, th = start_peer(14618, 7484, battery_v=3.3)
+    try:
+        with MavlinkBackend(links(14618), U_MAX, ASM.module_rotations) as be:
+            assert be.preflight().issues == ("module 0 battery 3.30 V < 3.5 V", "module 1 battery 3.30 V < 3.5 V")
+    finally:
+        stop_peer(peer, th)
+
+
+def test_unopenable_link():
+    with pytest.raises(MavlinkLinkError, match="cannot open /dev/ttyNOPE"):
+        MavlinkBackend(["/dev/ttyNOPE,57600"], U_MAX, ASM.module_rotations[:1]).connect()
+    with pytest.raises(ValueError, match="2 links for 1 modules"):
+        MavlinkBackend(["udpout:127.0.0.1:1", "udpout:127.0.0.1:2"], U_MAX, ASM.module_rotations[:1])
+
+
+def _px4_simple_mixers(text: str) -> list[tuple[tuple[float, ...], list[tuple[int, int, tuple[float, ...]]]]]:
+    """Parse PX4 simple mixers (``M:``, ``O:``, ``S:`` lines; everything else is comment), scales / 10000."""
+    mixers = []
+    for line in text.splitlines():
+        tag, _, rest = line.partition(":")
+        fields = rest.split()
+        if tag == "M":
+            mixers.append([None, []])
+        elif tag == "O":
+            mixers[-1][0] = tuple(int(v) / 1e4 for v in fields)
+        elif tag == "S":
+            mixers[-1][1].append((int(fields[0]), int(fields[1]), tuple(int(v) / 1e4 for v in fields[2:])))
+    return [(o, s) for o, s in mixers]
+
+
+def _scale(scaler: tuple[float, ...], x: float) -> float:
+    """PX4's mixer scaler: negative/positive scale, then offset, then clamp to [lower, upper]."""
+    neg, pos, offset, lower, upper = scaler
+    return min(max((neg if x < 0 else pos) * x + offset, lower), upper)
+
+
+def test_passthrough_mixer_file_matches_the_wire_convention():
+    mixers = _px4_simple_mixers((peers.ROOT / "firmware_params/px4/passthrough_quad.main.mix").read_text())
+    assert len(mixers) == 4
+    u = np.array([0.0, 0.25, 0.6, 1.0]) * U_MAX
+    controls = mw.to_controls(u, U_MAX)
+    for q, (out_scaler, inputs) in enumerate(mixers):
+        assert [(g, i) for g, i, _ in inputs] == [(mw.ACTUATOR_GROUP, q)]  # output q takes control q alone
+        out = _scale(out_scaler, sum(_scale(sc, controls[i]) for _, i, sc in inputs))
+        pwm = 1000 + (out + 1) / 2 * (2000 - 1000)  # PX4's PWM driver: [-1, 1] -> [PWM_MAIN_MIN, PWM_MAIN_MAX]
+        assert pwm == pytest.approx(mw.to_pwm(u, U_MAX, 1000, 2000)[q], abs=0.5)

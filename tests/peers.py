@@ -1,0 +1,79 @@
+"""Simulated modules in a thread of the test process, for the hardware backends' tests."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from groundstation.assembly.assembly_file import load_assembly
+from sim.module_peer import ModulePeer, PeerConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+U_MAX = ASM.params.u_max
+
+
+def start_peer(peer_class: type[ModulePeer], port: int, mocap_port: int, **kw) -> tuple[ModulePeer, threading.Thread]:
+    peer = peer_class(ASM, PeerConfig(port=port, mocap_endpoint=f"tcp/127.0.0.1:{mocap_port}", **kw))
+    peer.open()
+    th = threading.Thread(target=peer.run, daemon=True)
+    th.start()
+    return peer, th
+
+
+def stop_peer(peer: ModulePeer, th: threading.Thread) -> None:
+    peer.stop_event.set()
+    th.join(5)
+    peer.close()
+
+
+def hold(be, u: np.ndarray, seconds: float) -> None:
+    """Keep sending ``u`` at 200 Hz (the modules' watchdogs stop the motors when commands stop)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        be.send(u)
+        be.telemetry()
+        time.sleep(0.005)
+
+
+def check_commands_and_state(be, peer: ModulePeer) -> None:
+    """A connected hardware backend against its simulated modules: nothing spins until armed, commands arrive
+    bounded, the applied motors, battery and body rate come back, and the emergency stop zeroes at once."""
+    assert be.preflight().ok
+    hold(be, np.full(8, 0.5 * U_MAX), 0.3)
+    assert be.telemetry().motors.max() == 0.0  # not armed: the modules ignore it
+    be.arm()
+    cmd = np.array([-1.0, 2 * U_MAX, np.nan, np.inf, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX])
+    hold(be, cmd, 0.4)
+    tel = be.telemetry()
+    assert tel.link_ok and tel.battery_v.tolist() == pytest.approx([4.0, 4.0])
+    np.testing.assert_allclose(tel.motors, [0, U_MAX, 0, 0, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX],
+                               atol=2e-3 * U_MAX)
+    # The body rate reassembled from the modules' IMUs (each in its own tilted frame) is the body's. The lopsided
+    # command spins the assembly up, and the state is up to one 100 Hz reply old: 5% slack.
+    omega = peer.sim.true_state().omega
+    assert np.linalg.norm(omega) > 0.5
+    np.testing.assert_allclose(tel.gyro, omega, rtol=0.05, atol=0.05)
+    with pytest.raises(ValueError):
+        be.send(np.zeros(5))
+    be.emergency_stop()
+    assert be.telemetry().motors.max() == 0.0  # at once, not after a round trip
+    hold(be, np.full(8, 0.5 * U_MAX), 0.3)
+    assert be.telemetry().motors.max() == 0.0  # disarmed, and the modules latched the stop
+    assert all(m.stopped and not m.armed for m in peer.modules)
+
+
+def check_link_loss(be, peer: ModulePeer, th: threading.Thread, timeout: float) -> None:
+    """An armed, flying backend whose modules vanish reports the link lost within ``timeout`` (+ 50 ms)."""
+    hold(be, np.full(8, 0.5 * U_MAX), 0.1)
+    assert be.telemetry().link_ok
+    stop_peer(peer, th)
+    t0 = time.monotonic()
+    while be.telemetry().link_ok and time.monotonic() - t0 < 1.0:
+        be.send(np.full(8, 0.5 * U_MAX))
+        time.sleep(0.005)
+    assert not be.telemetry().link_ok and time.monotonic() - t0 < timeout + 0.05
