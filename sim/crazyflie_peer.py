@@ -3,7 +3,9 @@
 One UDP socket per module speaks CRTP exactly as cflib's UDP driver expects (one packet per datagram), runs the
 module motor app's rules (:mod:`groundstation.backends.crtp_wire`: armed flag, supervisor emergency stop that
 locks, a staleness timeout that stops the motors when commands stop arriving) and replies with the module's
-state. The pose goes out over Zenoh (:class:`sim.module_peer.ModulePeer`), so the ground station flies it with the
+state. It also answers the firmware services cflib's ``Crazyflie`` class uses to connect and to read and write
+parameters (:mod:`sim.crtp_services`), starting from stock parameter values unless ``PeerConfig.params`` sets
+them. The pose goes out over Zenoh (:class:`sim.module_peer.ModulePeer`), so the ground station flies it with the
 Crazyflie backend, in another process, exactly as it would fly hardware:
 
     groundstation sim-peer configs/assemblies/toy_v2.json --port 19850 --mocap tcp/127.0.0.1:7448
@@ -19,17 +21,20 @@ import socket
 import numpy as np
 
 from groundstation.backends import crtp_wire as wire
+from sim.crtp_services import FirmwareServices, stock_params
 from sim.module_peer import ModulePeer
 
 
 class _Link:
-    def __init__(self, sock: socket.socket) -> None:
+    def __init__(self, sock: socket.socket, firmware: FirmwareServices) -> None:
         self.sock = sock
         self.peer: tuple | None = None
         """Address of the ground station (learnt from its first packet)."""
         self.sequence = 0
         """Sequence number of the last command applied."""
         self.last_reply = -np.inf
+        self.firmware = firmware
+        """The module's parameters and connection-setup services."""
 
 
 class SimulatedCrazyflies(ModulePeer):
@@ -41,10 +46,17 @@ class SimulatedCrazyflies(ModulePeer):
         c = self.config
         self._links: list[_Link] = []
         for i in range(self.assembly.n):
+            firmware = FirmwareServices(stock_params())
+            for name, value in c.params:
+                firmware.set(name, value)
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self._links.append(_Link(s))
+            self._links.append(_Link(s, firmware))
             s.bind((c.host, c.port + i))
             s.setblocking(False)
+
+    def firmware(self, i: int) -> FirmwareServices:
+        """Module i's parameters."""
+        return self._links[i].firmware
 
     def _close_links(self) -> None:
         for link in getattr(self, "_links", []):
@@ -77,6 +89,10 @@ class SimulatedCrazyflies(ModulePeer):
                     link.sequence = cmd.sequence
                     m.arm(cmd.armed)
                     m.command(wire.from_counts(cmd.counts, u_max), now)
+                else:
+                    for reply in link.firmware.handle(head, body) or ():
+                        with contextlib.suppress(OSError):
+                            link.sock.sendto(reply, addr)
             if link.peer is not None and now - link.last_reply >= 1.0 / c.state_rate_hz:
                 st = wire.ModuleState(link.sequence, m.armed, m.stopped,
                                       tuple(wire.to_counts(self.module_motors(i), u_max)), c.battery_v,

@@ -3,10 +3,11 @@
 Each module is one vehicle (system id ``i + 1``, autopilot component 1) on its own UDP port, spoken to by pymavlink
 on both ends, and follows :mod:`groundstation.backends.mavlink_wire`: it takes ``SET_ACTUATOR_CONTROL_TARGET``
 through a pass-through mixer, accepts offboard mode only while setpoints stream (as PX4 does), arms only in
-offboard, answers every ``COMMAND_LONG`` with ``COMMAND_ACK``, disarms on offboard loss after
-``command_timeout`` (``COM_OF_LOSS_T`` with a disarm action), and latches flight termination. It streams
-``HEARTBEAT`` (1 Hz), ``SYS_STATUS`` (10 Hz), ``ATTITUDE`` and ``SERVO_OUTPUT_RAW`` (``state_rate_hz``, or what
-``MAV_CMD_SET_MESSAGE_INTERVAL`` asks for):
+offboard, answers every ``COMMAND_LONG`` with ``COMMAND_ACK``, disarms on offboard loss after its
+``COM_OF_LOSS_T`` (with a disarm action), and latches flight termination. It streams ``HEARTBEAT`` (1 Hz),
+``SYS_STATUS`` (10 Hz), ``ATTITUDE`` and ``SERVO_OUTPUT_RAW`` (``state_rate_hz``, or what
+``MAV_CMD_SET_MESSAGE_INTERVAL`` asks for), and serves the parameters it uses (``PARAM_REQUEST_READ``,
+``PARAM_SET``; stock PX4 values unless ``PeerConfig.params`` sets them): ``COM_OF_LOSS_T`` and the PWM range.
 
     groundstation sim-peer configs/assemblies/toy_v2.json --protocol mavlink --port 14560
 
@@ -25,10 +26,9 @@ from groundstation.control.trajectory import roll_pitch_yaw
 from sim.module_peer import ModulePeer
 
 mav = mavutil.mavlink
-PWM_MIN, PWM_MAX = 1000, 2000
-"""us: the PWM range of the simulated modules (PWM_MAIN_MIN/MAX)."""
-PWM_DISARMED = 900
-"""us: what PX4 outputs while disarmed (PWM_MAIN_DISARM)."""
+STOCK_PARAMS = {"COM_OF_LOSS_T": (1.0, mav.MAV_PARAM_TYPE_REAL32), "PWM_MAIN_MIN": (1000, mav.MAV_PARAM_TYPE_INT32),
+                "PWM_MAIN_MAX": (2000, mav.MAV_PARAM_TYPE_INT32), "PWM_MAIN_DISARM": (900, mav.MAV_PARAM_TYPE_INT32)}
+"""Parameters a simulated module uses, at PX4 1.13's defaults: value and MAV_PARAM_TYPE."""
 SETPOINT_STREAM_S = 0.5
 """Offboard is refused unless a setpoint arrived within this long, s (PX4 wants a stream before the switch)."""
 HEARTBEAT_S = 1.0
@@ -36,9 +36,11 @@ SYS_STATUS_S = 0.1
 
 
 class _Vehicle:
-    def __init__(self, conn, system_id: int, state_interval: float) -> None:
+    def __init__(self, conn, system_id: int, state_interval: float, params: dict[str, list]) -> None:
         self.conn = conn
         self.system_id = system_id
+        self.params = params
+        """name -> [value, MAV_PARAM_TYPE]."""
         self.offboard = False
         self.last_setpoint = -np.inf
         self.heard = False
@@ -59,9 +61,21 @@ class SimulatedPx4(ModulePeer):
         c = self.config
         self._vehicles: list[_Vehicle] = []
         for i in range(self.assembly.n):
+            params = {name: [value, kind] for name, (value, kind) in STOCK_PARAMS.items()}
+            for name, value in c.params:
+                if name not in params:
+                    raise ValueError(f"a simulated PX4 module has no parameter {name}")
+                params[name][0] = value
             conn = mavutil.mavlink_connection(f"udpin:{c.host}:{c.port + i}", source_system=i + 1,
                                               source_component=mav.MAV_COMP_ID_AUTOPILOT1)
-            self._vehicles.append(_Vehicle(conn, i + 1, 1.0 / c.state_rate_hz))
+            self._vehicles.append(_Vehicle(conn, i + 1, 1.0 / c.state_rate_hz, params))
+
+    def param(self, i: int, name: str) -> float:
+        """Module i's parameter ``name``."""
+        return self._vehicles[i].params[name][0]
+
+    def command_timeout(self, i: int) -> float:
+        return self.param(i, "COM_OF_LOSS_T")
 
     def _close_links(self) -> None:
         for v in getattr(self, "_vehicles", []):
@@ -74,7 +88,7 @@ class SimulatedPx4(ModulePeer):
                 self.packets += 1
                 v.heard = True
                 self._handle(v, m, msg, now)
-            if m.armed and now - m.last_command > self.config.command_timeout:
+            if m.armed and now - m.last_command > self.command_timeout(i):
                 v.offboard = False  # offboard loss: the rules below disarm; PX4 leaves offboard too
             if v.heard:
                 with contextlib.suppress(OSError):  # the ground station went away: offboard loss stops the motors
@@ -90,6 +104,15 @@ class SimulatedPx4(ModulePeer):
                 m.command(mw.from_controls(msg.controls, self.assembly.params.u_max), now)
         elif kind == "COMMAND_LONG" and msg.target_system == v.system_id:
             v.conn.mav.command_ack_send(msg.command, self._command(v, m, msg, now))
+        elif kind in ("PARAM_REQUEST_READ", "PARAM_SET") and msg.target_system == v.system_id:
+            entry = v.params.get(msg.param_id)
+            if entry is None:
+                return  # PX4 stays silent about a parameter it does not have
+            if kind == "PARAM_SET":
+                entry[0] = mw.param_from_wire(msg.param_value, entry[1])
+            index = list(v.params).index(msg.param_id)
+            v.conn.mav.param_value_send(msg.param_id.encode(), mw.param_to_wire(*entry), entry[1], len(v.params),
+                                        index)
 
     def _command(self, v: _Vehicle, m, msg, now: float) -> int:
         """Carry out one COMMAND_LONG; returns the MAV_RESULT."""
@@ -142,6 +165,7 @@ class SimulatedPx4(ModulePeer):
             w = mw.FRD_TO_FLU @ self.module_gyro(i)
             send.attitude_send(t_ms, *roll_pitch_yaw(rotation), *(float(x) for x in w))
         if mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW in due:
-            pwm = (mw.to_pwm(self.module_motors(i), self.assembly.params.u_max, PWM_MIN, PWM_MAX) if m.armed
-                   else [PWM_DISARMED] * 4)
+            lo, hi = int(self.param(i, "PWM_MAIN_MIN")), int(self.param(i, "PWM_MAIN_MAX"))
+            pwm = (mw.to_pwm(self.module_motors(i), self.assembly.params.u_max, lo, hi) if m.armed
+                   else [int(self.param(i, "PWM_MAIN_DISARM"))] * 4)
             send.servo_output_raw_send(t_us & 0xFFFFFFFF, 0, *pwm, 0, 0, 0, 0)

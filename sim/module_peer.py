@@ -39,11 +39,15 @@ class PeerConfig:
     motor_time_constant: float = 0.02
     """s"""
     command_timeout: float = 0.1
-    """A module's firmware stops its motors when no command arrived for this long, s."""
+    """The Crazyflie motor app stops its motors when no command arrived for this long, s (PX4 modules use their
+    ``COM_OF_LOSS_T`` parameter instead)."""
     state_rate_hz: float = 100.0
     """Module state replies, Hz (every command is applied; replies are rate-limited like a radio's acks)."""
     battery_v: float = 4.0
     """V"""
+    params: tuple[tuple[str, float], ...] = ()
+    """Firmware parameters set on every module before it starts (a module already configured); the others keep
+    their stock values."""
 
 
 class ModuleRules:
@@ -112,6 +116,10 @@ class ModulePeer:
         """Read every pending packet, apply it to :attr:`modules`, and reply at ``state_rate_hz``."""
         raise NotImplementedError
 
+    def command_timeout(self, i: int) -> float:
+        """Module i stops its motors when no command arrived for this long, s."""
+        return self.config.command_timeout
+
     # -- shared -------------------------------------------------------------------------------------------------
     def _observe(self, t: float, state) -> None:
         if self._vmocap is not None:
@@ -149,8 +157,8 @@ class ModulePeer:
         while not self.stop_event.is_set() and (duration is None or k * dt < duration):
             now = time.monotonic()
             self._serve(now)
-            for m in self.modules:
-                m.enforce_timeout(now, self.config.command_timeout)
+            for i, m in enumerate(self.modules):
+                m.enforce_timeout(now, self.command_timeout(i))
             self.sim.send(np.concatenate([m.thrust() for m in self.modules]))
             k += 1
             self.sim.advance_to(k * dt)

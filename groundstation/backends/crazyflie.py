@@ -35,8 +35,8 @@ _drivers_ready = threading.Lock()
 _drivers_initialized = False
 
 
-def _link_driver(uri: str, on_error):
-    """An open cflib link driver for ``uri`` (cflib's driver list initialised once per process)."""
+def ensure_drivers() -> None:
+    """Initialise cflib's link drivers once per process (every cflib connection needs them)."""
     global _drivers_initialized
     import cflib.crtp
 
@@ -44,6 +44,13 @@ def _link_driver(uri: str, on_error):
         if not _drivers_initialized:
             cflib.crtp.init_drivers()
             _drivers_initialized = True
+
+
+def _link_driver(uri: str, on_error):
+    """An open cflib link driver for ``uri``."""
+    import cflib.crtp
+
+    ensure_drivers()
     try:
         driver = cflib.crtp.get_link_driver(uri, link_error_callback=on_error)
     except Exception as exc:  # driver-specific errors (no dongle, bad address)

@@ -69,6 +69,8 @@ class _Module:
         """Learnt from the first autopilot heartbeat."""
         self.component_id = mav.MAV_COMP_ID_AUTOPILOT1
         self.heard = -np.inf
+        self.battery_heard = -np.inf
+        """When SYS_STATUS last came (it is slower than the rest: 10 Hz on PX4)."""
         self.armed = False
         self.offboard = False
         self.terminated = False
@@ -119,7 +121,7 @@ class MavlinkBackend:
         deadline = since + self.settings.preflight_timeout
         requested = [False] * len(self._modules)
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
-        while self._clock() < deadline and not all(m.heard >= since and np.isfinite(m.heard) and r
+        while self._clock() < deadline and not all(m.battery_heard >= since and r
                                                    for m, r in zip(self._modules, requested, strict=True)):
             self._heartbeat(force=True)
             self._send_controls(np.zeros_like(self._applied))
@@ -131,9 +133,11 @@ class MavlinkBackend:
                     requested[i] = True
         issues = [f"module {i} ({self.links[i]}) does not answer" for i, m in enumerate(self._modules)
                   if m.system_id is None or m.heard < since]
+        issues += [f"module {i} ({self.links[i]}) does not report its battery" for i, m in enumerate(self._modules)
+                   if m.system_id is not None and m.heard >= since and m.battery_heard < since]
         issues += [f"module {i} battery {v:.2f} V < {self.settings.min_battery_v:g} V"
                    for i, v in enumerate(self._battery)
-                   if self._modules[i].heard >= since and v < self.settings.min_battery_v]
+                   if self._modules[i].battery_heard >= since and v < self.settings.min_battery_v]
         issues += [f"module {i} is flight-terminated (reboot it)" for i, m in enumerate(self._modules) if m.terminated]
         issues += [f"module {i} is already armed" for i, m in enumerate(self._modules) if m.armed]
         return PreflightReport(not issues, tuple(issues))
@@ -280,6 +284,7 @@ class MavlinkBackend:
                         self._applied[4 * i:4 * i + 4] = mw.from_pwm(pwm, self.u_max, s.pwm_min, s.pwm_max)
                 elif kind == "SYS_STATUS":
                     self._battery[i] = msg.voltage_battery * 1e-3
+                    m.battery_heard = now
                 else:
                     continue
                 m.heard = now

@@ -16,9 +16,13 @@ output q, so the four controls are the module's four rotor commands (see ``firmw
   ``MAV_CMD_COMPONENT_ARM_DISARM``; each answered by ``COMMAND_ACK``; ``HEARTBEAT.base_mode`` reports armed.
 * Emergency stop: ``MAV_CMD_COMPONENT_ARM_DISARM`` with param2 = 21196 (disarm even in flight), then
   ``MAV_CMD_DO_FLIGHTTERMINATION`` (latches until reboot, like the Crazyflie supervisor's stop).
+* Parameters: ``PARAM_REQUEST_READ`` / ``PARAM_SET``, answered by ``PARAM_VALUE``. PX4 encodes integer
+  parameters bytewise: the float32 ``param_value`` field carries the integer's bytes, not its value.
 """
 
 from __future__ import annotations
+
+import struct
 
 import numpy as np
 
@@ -54,3 +58,25 @@ def to_pwm(u: np.ndarray, u_max: float, pwm_min: int, pwm_max: int) -> list[int]
 def from_pwm(pwm, u_max: float, pwm_min: int, pwm_max: int) -> np.ndarray:
     """PWM outputs (us) -> rotor inputs, rad^2/s^2; at or below ``pwm_min`` (or a disarmed 0) is no thrust."""
     return np.clip((np.asarray(pwm, float) - pwm_min) / (pwm_max - pwm_min), 0.0, 1.0) * u_max
+
+
+PARAM_INT_FORMATS = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}
+"""MAV_PARAM_TYPE_UINT8 .. INT32 -> struct format; MAV_PARAM_TYPE_REAL32 (9) travels as itself."""
+
+
+def param_to_wire(value: float, param_type: int) -> float:
+    """A parameter value as the float32 ``param_value`` field carries it (PX4's bytewise integer encoding)."""
+    fmt = PARAM_INT_FORMATS.get(param_type)
+    if fmt is None:
+        return float(value)
+    raw = struct.pack(fmt, int(round(value))).ljust(4, b"\0")
+    return struct.unpack("<f", raw)[0]
+
+
+def param_from_wire(field: float, param_type: int) -> float:
+    """The parameter value in a ``param_value`` field (inverse of :func:`param_to_wire`)."""
+    fmt = PARAM_INT_FORMATS.get(param_type)
+    if fmt is None:
+        return float(field)
+    raw = struct.pack("<f", field)
+    return float(struct.unpack(fmt, raw[:struct.calcsize(fmt)])[0])

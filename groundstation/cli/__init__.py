@@ -7,6 +7,7 @@ non-zero exit code: 2 for bad input, 1 for a result that failed (e.g. an infeasi
 
 from __future__ import annotations
 
+import logging
 import sys
 
 import click
@@ -16,6 +17,7 @@ from groundstation.cli.design_cmd import design_command
 from groundstation.cli.enumerate_cmd import enumerate_command
 from groundstation.cli.fly_cmd import fly_command, log_group, mocap_bridge_command, sim_peer_command
 from groundstation.cli.optimize_cmd import optimize_command
+from groundstation.cli.params_cmd import params_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import GroundstationError
 
@@ -37,10 +39,13 @@ cli.add_command(fly_command)
 cli.add_command(log_group)
 cli.add_command(mocap_bridge_command)
 cli.add_command(sim_peer_command)
+cli.add_command(params_command)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``groundstation`` and ``python -m groundstation``."""
+    # cflib logs every link problem as a warning with a traceback; our errors name the module and its link.
+    logging.getLogger("cflib").setLevel(logging.ERROR)
     try:
         rv = cli.main(args=argv, prog_name="groundstation", standalone_mode=False)
     except click.exceptions.NoArgsIsHelpError as exc:  # bare command: show help, like click does

@@ -153,9 +153,12 @@ def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key
               help="Zenoh endpoint the virtual mocap listens on.")
 @click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
 @click.option("--physics-hz", type=float, default=240.0, show_default=True)
+@click.option("--params", "param_file", type=click.Path(dir_okay=False), default=None,
+              help="Start the modules with these firmware parameters set (a firmware_params/ file: modules "
+                   "already configured); otherwise they have stock values.")
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
 def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, body: str, physics_hz: float,
-                     duration: float | None) -> int:
+                     param_file: str | None, duration: float | None) -> int:
     """Simulate an assembly's modules behind their wire protocol on loopback UDP, with its pose on Zenoh.
 
     Fly it with a config whose backend is crazyflie (modules udp://127.0.0.1:PORT, PORT+1, ...) or mavlink
@@ -164,6 +167,7 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     import signal
 
     from groundstation.assembly.assembly_file import load_assembly
+    from groundstation.firmware.params import load_param_file
     from groundstation.mocap.zenoh_link import pose_key
     from sim.module_peer import PeerConfig
 
@@ -174,12 +178,13 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
         from sim.mavlink_peer import SimulatedPx4 as peer_class
         scheme = "udpout:"
     asm, _ = load_assembly(assembly)
+    params = tuple(load_param_file(param_file).items()) if param_file else ()
     peer = peer_class(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
-                                      physics_hz=physics_hz))
+                                      physics_hz=physics_hz, params=params))
     try:
         peer.open()
-    except OSError as exc:
-        raise UsageError(str(exc)) from None
+    except (OSError, ValueError) as exc:  # port taken; a parameter these modules do not have
+        raise UsageError(f"{param_file}: {exc}" if isinstance(exc, ValueError) else str(exc)) from None
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: peer.stop_event.set())
     links = ", ".join(f"{scheme}{peer.config.host}:{port + i}" for i in range(asm.n))

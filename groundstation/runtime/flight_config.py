@@ -41,11 +41,16 @@ class BackendSection:
     """mavlink: the modules' PWM_MAIN_MIN (zero thrust), us."""
     pwm_max: int = Field(2000, gt=0)
     """mavlink: the modules' PWM_MAIN_MAX (full thrust), us."""
+    firmware_params: str | None = None
+    """crazyflie, mavlink: a parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/
+    module_params.toml``; relative to this config) that preflight checks on every module before arming."""
 
     @model_validator(mode="after")
-    def _pwm_ordered(self) -> BackendSection:
+    def _consistent(self) -> BackendSection:
         if self.pwm_max <= self.pwm_min:
             raise ValueError("pwm_max must be greater than pwm_min")
+        if self.kind == "sim" and self.firmware_params is not None:
+            raise ValueError("firmware_params needs a crazyflie or mavlink backend (sim has no module firmware)")
         return self
 
 

@@ -35,6 +35,8 @@ from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
 from groundstation.control.trajectory import FlightPlan, make_track
 from groundstation.errors import ConfigError
+from groundstation.firmware.modules import check_modules, required_params
+from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog
 from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session, pose_key
 from groundstation.runtime.closed_loop import FlightVolume, PreflightError, hover_check, record_of, volume_check
@@ -101,6 +103,18 @@ def code_version() -> str:
     return f"{__version__}" + (f" ({rev})" if rev else "")
 
 
+def _firmware_param_issues(cfg: FlightConfig, base: Path, src: str, cache_dir: Path) -> list[str]:
+    """Preflight: every module's firmware parameters as ``backend.firmware_params`` requires (none set: no check)."""
+    if cfg.backend.firmware_params is None:
+        return []
+    try:
+        wanted = required_params(cfg.backend, base)
+    except ConfigError as exc:
+        raise ConfigError(str(exc), path=src, key="backend.firmware_params") from None
+    bad = param_issues(check_modules(cfg.backend, wanted, cache_dir=cache_dir))
+    return [f"firmware parameter: {b} (fix with: groundstation params {src} --apply)" for b in bad]
+
+
 def _hardware_backend(cfg: FlightConfig, assembly) -> CrazyflieBackend | MavlinkBackend:
     b = cfg.backend
     if b.kind == "crazyflie":
@@ -164,10 +178,13 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
             world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults, activity))
             backend = world.backend
+            param_issues = []
         else:
             ours = [m.endpoint] if m.listen else []
             theirs = [] if m.listen else [m.endpoint]
             world = None
+            # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
+            param_issues = _firmware_param_issues(cfg, base, src, log_file.parent)
             backend = _hardware_backend(cfg, assembly)
             try:
                 backend.connect()
@@ -195,7 +212,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             time.sleep(0.005)
         s = pose.state()
         report = backend.preflight()
-        issues = list(report.issues)
+        issues = list(report.issues) + param_issues
         if s is None:
             issues.append(f"mocap does not see '{m.body}' on {key} via {m.endpoint}")
         else:

@@ -62,7 +62,7 @@ def test_commands_reach_the_modules_and_the_state_comes_back():
 
 
 def test_offboard_loss_disarms_the_modules_and_ends_the_flight():
-    peer, th = start_peer(14604, 7482)
+    peer, th = start_peer(14604, 7482, params=(("COM_OF_LOSS_T", 0.1),))
     try:
         with MavlinkBackend(links(14604), U_MAX, ASM.module_rotations, MavlinkSettings(link_timeout=0.1)) as be:
             be.arm()

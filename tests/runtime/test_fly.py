@@ -9,8 +9,13 @@ from mcap.reader import make_reader
 
 from groundstation.errors import ConfigError
 from groundstation.mocap.zenoh_link import LinkError
+from groundstation.runtime.closed_loop import PreflightError
 from groundstation.runtime.flight import Requests
+from groundstation.runtime.flight_config import load_flight_config
 from groundstation.runtime.fly import Faults, fly
+from sim.crazyflie_peer import SimulatedCrazyflies
+from sim.mavlink_peer import SimulatedPx4
+from tests.peers import start_peer, stop_peer
 
 ROOT = Path(__file__).resolve().parents[2]
 FLIGHT = ROOT / "configs/flights/toy_figure8_sim.toml"
@@ -111,6 +116,9 @@ def test_bad_inputs_never_arm(tmp_path):
         fly(config_with(tmp_path, **{"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nmodules = ["a"]'}))
     with pytest.raises(ConfigError, match="backend.kind"):
         fly(config_with(tmp_path, **{'kind = "sim"': 'kind = "ardupilot"'}))
+    sim_with_params = 'motor_time_constant = 0.02\nfirmware_params = "p.toml"'
+    with pytest.raises(ConfigError, match="backend: Value error, firmware_params needs a crazyflie or mavlink"):
+        fly(config_with(tmp_path, **{"motor_time_constant = 0.02": sim_with_params}))
     for kind in ("crazyflie", "mavlink"):
         with pytest.raises(ConfigError, match=f"backend.modules: the {kind} backend needs one link per module"):
             fly(config_with(tmp_path, **{'kind = "sim"': f'kind = "{kind}"'}))
@@ -127,25 +135,36 @@ SITL = {"crazyflie": ("toy_figure8_crazyflie_sitl.toml", "crtp", 19850, 19880),
         "mavlink": ("toy_figure8_mavlink_sitl.toml", "mavlink", 14560, 14580)}
 
 
+def sitl_config(tmp_path, kind: str, port: int, mocap: str) -> Path:
+    """The shipped SITL flight config of ``kind``, moved to ``port`` (module 0) and the ``mocap`` endpoint."""
+    config_name, _, shipped_port, _ = SITL[kind]
+    src = ROOT / "configs/flights" / config_name
+    text = src.read_text()
+    text = text.replace('assembly = "../assemblies/toy_v2.json"',
+                        f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
+    text = text.replace('firmware_params = "../../', f'firmware_params = "{ROOT}/')
+    text = text.replace(str(shipped_port), str(port)).replace(str(shipped_port + 1), str(port + 1))
+    text = text.replace("tcp/127.0.0.1:7448", mocap)
+    cfg = tmp_path / f"{kind}.toml"
+    cfg.write_text(text)
+    return cfg
+
+
 @pytest.fixture(params=sorted(SITL))
 def sim_peer(request, tmp_path):
-    """``groundstation sim-peer`` in its own process, as an operator would start it, for each hardware backend;
-    yields the flight config, the peer process and the backend kind."""
+    """``groundstation sim-peer`` in its own process, as an operator would start it, for each hardware backend,
+    its modules already configured (``--params``); yields the flight config, the peer process and the kind."""
     import subprocess
     import sys
     import time
 
     kind = request.param
-    config_name, protocol, port, test_port = SITL[kind]
-    text = (ROOT / "configs/flights" / config_name).read_text()
-    text = text.replace('assembly = "../assemblies/toy_v2.json"',
-                        f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
-    text = text.replace(str(port), str(test_port)).replace(str(port + 1), str(test_port + 1)).replace("7448", "7476")
-    cfg = tmp_path / f"{kind}.toml"
-    cfg.write_text(text)
+    _, protocol, _, test_port = SITL[kind]
+    cfg = sitl_config(tmp_path, kind, test_port, "tcp/127.0.0.1:7476")
+    params = load_flight_config(cfg)[0].backend.firmware_params
     peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
                              str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", protocol,
-                             "--port", str(test_port), "--mocap", "tcp/127.0.0.1:7476"],
+                             "--port", str(test_port), "--mocap", "tcp/127.0.0.1:7476", "--params", params],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     time.sleep(2.0)
     yield cfg, peer, kind
@@ -185,3 +204,21 @@ def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
     assert off[0]["t"] - last_flying["t"] <= 1.0 / 250 + 5e-4  # motors off in the period the loss is seen
     assert 4.0 < off[0]["t"] < 4.0 + 0.1 + 0.05  # seen within the 0.1 s link timeout of the kill
     assert any(b"backend link lost" in data for _, data in logs)
+
+
+@pytest.mark.parametrize("kind, peer_class, wrong", [
+    ("crazyflie", SimulatedCrazyflies, "module 0 (udp://127.0.0.1:19890): supervisor.tmblChckEn is 1, must be 0"),
+    ("mavlink", SimulatedPx4, "module 0 (udpout:127.0.0.1:19890): COM_OF_LOSS_T is 1, must be 0.1")])
+def test_preflight_refuses_modules_with_stock_parameters(tmp_path, kind, peer_class, wrong):
+    peer, th = start_peer(peer_class, 19890, 7479)  # fresh modules: stock firmware parameters
+    try:
+        cfg = sitl_config(tmp_path, kind, 19890, "tcp/127.0.0.1:7479")
+        log = tmp_path / "p.mcap"
+        with pytest.raises(PreflightError) as err:
+            fly(cfg, log_path=log)
+        assert f"firmware parameter: {wrong} (fix with: groundstation params {cfg} --apply)" in str(err.value)
+        assert not any(m.armed for m in peer.modules) and peer.sim.telemetry().motors.max() == 0.0
+        counts, _, logs, _ = read_log(log)
+        assert "/control" not in counts and any(b"firmware parameter" in data for _, data in logs)
+    finally:
+        stop_peer(peer, th)

@@ -1,0 +1,70 @@
+"""Firmware parameters every module of an assembly must have before flight: the file, and the check's result.
+
+A parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/module_params.toml``) is TOML with one
+table, ``[params]``, of parameter name -> number. ``groundstation params FLIGHT.toml`` reads each module's values
+over its link (cflib for Crazyflies, MAVLink for PX4) and compares; with ``--apply`` it writes the wrong ones
+first and reads them back. ``fly`` runs the same check (never the writes) in preflight when the flight config
+names a file in ``backend.firmware_params``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import ConfigDict
+from pydantic.dataclasses import dataclass as pydantic_dataclass
+
+from groundstation import config
+
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+@pydantic_dataclass(frozen=True, config=_STRICT)
+class ParamFile:
+    params: dict[str, float]
+    """Parameter name (``group.name`` for Crazyflies, ``NAME`` for PX4) -> required value."""
+
+
+def load_param_file(path: str | Path) -> dict[str, float]:
+    """The required values in a parameter file; errors name the file and key."""
+    return dict(config.load(ParamFile, path).params)
+
+
+def matches(actual: float, expected: float) -> bool:
+    """Parameters travel as float32 (MAVLink) or their C type: equal at float32 resolution."""
+    return math.isclose(actual, expected, rel_tol=1e-6, abs_tol=1e-9)
+
+
+@dataclass(frozen=True)
+class ParamCheck:
+    """One parameter of one module."""
+
+    module: int
+    """Index in the assembly."""
+    link: str
+    """The module's link (URI or connection string)."""
+    name: str
+    expected: float
+    actual: float | None
+    """Value read back from the module; None if the module does not have the parameter or did not answer."""
+    written: bool = False
+    """``--apply`` wrote it in this run."""
+    note: str = ""
+    """Why ``actual`` is None (e.g. the module did not answer)."""
+
+    @property
+    def ok(self) -> bool:
+        return self.actual is not None and matches(self.actual, self.expected)
+
+
+def issues(checks: list[ParamCheck]) -> list[str]:
+    """One line per parameter that is not as required (empty: all good)."""
+    out = []
+    for c in checks:
+        if c.ok:
+            continue
+        got = c.note or "unknown" if c.actual is None else f"{c.actual:g}"
+        out.append(f"module {c.module} ({c.link}): {c.name} is {got}, must be {c.expected:g}")
+    return out
