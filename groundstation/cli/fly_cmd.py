@@ -21,6 +21,19 @@ STATUS_S = 0.2
 """Status line refresh interval, s."""
 
 
+KEYS_HINT = "   l/Ctrl-C: land, k/Ctrl-C twice: stop motors"
+
+
+def status_text(s, width: int) -> str:
+    """The status line (rich markup) for a terminal ``width`` columns wide: the key hint only if it fits."""
+    battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
+    text = (f"{s.phase:>9} t={s.t:6.1f} s  mocap {s.mocap_age * 1e3:5.1f} ms  worst motor {s.worst_motor:4.0%}"
+            f"{battery}  late {s.overruns}")
+    if len(text) + len(KEYS_HINT) <= width:
+        text += KEYS_HINT
+    return f"[bold]{text[:9]}[/]{text[9:width]}"
+
+
 @click.command("fly")
 @click.argument("flight", type=click.Path(dir_okay=False))
 @click.option("--duration", type=float, default=None, help="Override the tracking time, s.")
@@ -53,10 +66,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
             if s is None or s is shown or not activity.may_work(1e-3):  # a render takes ~0.5 ms
                 continue
             shown = s
-            battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
-            live.update(f"[bold]{s.phase}[/] t={s.t:6.1f} s  mocap age {s.mocap_age * 1e3:5.1f} ms  worst motor "
-                        f"{s.worst_motor:4.0%}{battery}  late periods {s.overruns}"
-                        "   (l or Ctrl-C: land; k or Ctrl-C twice: stop motors)", refresh=True)
+            live.update(status_text(s, console.width), refresh=True)
             done.wait(STATUS_S)
 
     from groundstation.runtime.keys import KeyReader
@@ -117,8 +127,6 @@ def recover_command(src: str, dst: str) -> int:
     click.echo(json.dumps(counts))
     click.echo(f"recovered: {out}", err=True)
     return 0 if counts["messages"] > 0 else 1
-
-
 
 
 @click.command("mocap-bridge")

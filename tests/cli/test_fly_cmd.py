@@ -33,3 +33,17 @@ def test_sim_peer_bad_assembly(cli, tmp_path):
     assert code == 2 and str(bad) in err and out == ""
     code, out, err = cli("sim-peer", ASSEMBLY, "--protocol", "ardupilot")
     assert code == 2 and "'ardupilot' is not one of 'crtp', 'mavlink'" in err
+
+
+def test_status_line_fits_the_terminal():
+    from rich.text import Text
+
+    from groundstation.cli.fly_cmd import KEYS_HINT, status_text
+    from groundstation.runtime.flight import Status
+
+    s = Status(t=12.345, phase="track", mocap_age=0.0041, worst_motor=0.456, battery_v=3.95, overruns=2)
+    for width, hint in ((80, False), (140, True)):
+        plain = Text.from_markup(status_text(s, width)).plain
+        assert len(plain) <= width and (KEYS_HINT in plain) is hint
+        assert "track t=  12.3 s  mocap   4.1 ms  worst motor  46%  battery 3.95 V  late 2" in plain
+    assert len(Text.from_markup(status_text(s, 40)).plain) == 40  # a very narrow terminal: cut, never wrapped
