@@ -1,4 +1,4 @@
-"""One MCAP file per flight, written off the control thread, finalized on every exit path.
+"""One MCAP file per flight, written by a process of its own, finalized on every exit path.
 
 Protobuf channels use Foxglove's schemas so Foxglove shows the flight in 3D without set-up: mocap poses as
 received (``/mocap/<body>``, the Zenoh payload bytes unchanged), the state estimate (``/state/pose``),
@@ -7,15 +7,31 @@ Numeric records go on JSON channels with a JSON schema, which Foxglove plots dir
 period: flight state, setpoint, desired wrench, per-module motor commands, loop timing), ``/backend/telemetry``,
 ``/loop/timing`` (summary), ``/flight/summary``.
 
-Robustness: chunks are small (32 KiB) and the file is flushed about once a second, so after SIGKILL every
-complete chunk is on disk; :func:`recover` reads such a file with a streaming reader and writes a finalized
-copy. :meth:`FlightLog.close` finishes the file (summary, footer) and is called on normal exit, Ctrl-C and
-SIGTERM.
+Why a process: encoding and writing MCAP is Python work (JSON, protobuf, the ``mcap`` writer, chunk
+compression), and in the flight process it competed with the control loop for the GIL even when done between
+periods: with the writer doing nothing, real-time 500 Hz runs had no late periods, with it 0-2 per minute. Here
+the flight process only appends to a deque; a feeder thread, between control periods, pickles what has queued
+into one frame down the writer's stdin (a few microseconds of GIL), and the writer process does the rest. The
+writer is started as ``python -m groundstation.flightlog.mcap_log``, not with multiprocessing, whose "spawn"
+would re-run the caller's main script in the child unless it is guarded by ``if __name__ == "__main__"``.
+
+Robustness: chunks are small (32 KiB) and the file is flushed about once a second. :meth:`FlightLog.close`
+finishes the file (summary, footer) and is called on normal exit, Ctrl-C and SIGTERM. If the flight process is
+killed (SIGKILL), the writer sees its pipe close and finishes the file itself, losing only what had not been fed
+to it yet (under one control period). If both are killed, every complete chunk is on disk and :func:`recover`
+reads the file with a streaming reader and writes a finalized copy.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import pickle
+import select
+import struct
+import subprocess
+import sys
 import threading
 import time
 from collections import deque
@@ -30,7 +46,7 @@ from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
-from mcap_protobuf.schema import register_schema
+from mcap_protobuf.schema import build_file_descriptor_set
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.rotations import matrix_to_quat
@@ -39,11 +55,15 @@ from groundstation.runtime.loop import LoopActivity
 CHUNK_BYTES = 32 * 1024
 FLUSH_S = 1.0
 POLL_S = 0.02
-ITEM_BUDGET_S = 1e-3
-"""Idle time the writer wants left before the next control period to start a message, s. Most messages take
-< 0.1 ms (one that closes a chunk up to ~0.5 ms), but at 500 Hz a 0.4 ms budget still left 2 late periods per
-minute with real-time priority and 1 ms left none in 3 of 4 runs (compute p99 0.55-0.88 ms -> 0.34-0.58 ms)."""
-"""The writer's wake-up interval when no control loop signals the end of its periods, s."""
+"""The feeder's wake-up interval when no control loop signals the end of its periods, s."""
+FEED_BUDGET_S = 5e-4
+"""Idle time the feeder wants left before the next control period to pickle and send a batch, s."""
+FEED_BATCH = 16
+"""Most items pickled at once: a backlog (e.g. from preflight) goes out in pieces between periods, not in one
+long pickle that holds the GIL across the next period's start (measured: ~10 us an item)."""
+CLOSE_TIMEOUT_S = 10.0
+_FRAME = struct.Struct("<I")
+"""Length prefix of each pickled batch on the writer's stdin."""
 _JSON_SCHEMA = json.dumps({"type": "object"}).encode()
 LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
 
@@ -59,57 +79,51 @@ def _stamp(t: float) -> Timestamp:
 
 
 class FlightLog:
-    """Thread-safe, non-blocking logger: calls enqueue, a writer thread encodes and writes."""
+    """Thread-safe, non-blocking logger: calls enqueue; a feeder thread hands batches to the writer process."""
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
                  activity: LoopActivity | None = None) -> None:
         self.path = Path(path)
-        self._fh = self.path.open("wb")
-        self._writer = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library="groundstation")
-        for name, data in (metadata or {}).items():
-            self._writer.add_metadata(name, {"value": data})
-        self._channels: dict[str, int] = {}
-        # Producers append without waking the writer; it runs between control periods (see LoopActivity).
+        # A session of its own: the operator's Ctrl-C (a signal to the terminal's process group) lands the flight
+        # and must not kill the log; the writer ends when its input does, at close or when this process dies.
+        self._process = subprocess.Popen([sys.executable, "-m", "groundstation.flightlog.mcap_log"],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        self._send([("open", str(self.path), dict(metadata or {}), 0.0)])
+        # Producers append without waking anyone; the feeder runs between control periods (see LoopActivity).
         self._items: deque = deque()
+        self._schemas: set[str] = set()
+        """Protobuf schemas already sent to the writer (message classes do not pickle; descriptors do)."""
         self._activity = activity or LoopActivity()
         self._closed = False
         self.dropped = 0
-        self.error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+        self.error: str | None = None
+        """Why the writer failed (None while it works)."""
+        self.writer_pid = self._process.pid
+        self._thread = threading.Thread(target=self._feed, name="mcap-feeder", daemon=True)
         self._thread.start()
 
     # -- producer side (any thread) ------------------------------------------------------------------------------
     def protobuf(self, topic: str, message, t: float) -> None:
-        self._put(("pb", topic, message, t))
+        self.raw_protobuf(topic, type(message), message.SerializeToString(), t)
 
     def raw_protobuf(self, topic: str, message_type, payload: bytes, t: float) -> None:
         """Log already-serialized protobuf bytes (e.g. a Zenoh payload) under ``message_type``'s schema."""
-        self._put(("raw", topic, (message_type, payload), t))
+        name = message_type.DESCRIPTOR.full_name
+        if name not in self._schemas:  # once per type, before its first message
+            self._schemas.add(name)
+            self._put(("schema", name, build_file_descriptor_set(message_type).SerializeToString(), t))
+        self._put(("pb", topic, (name, payload), t))
 
     def record(self, topic: str, data: dict, t: float) -> None:
-        """A JSON record; numpy values are converted on the writer thread (pass copies of arrays you reuse)."""
+        """A JSON record; numpy values are converted by the writer (pass copies of arrays you reuse)."""
         self._put(("json", topic, data, t))
 
     def event(self, level: str, text: str, t: float, name: str = "groundstation") -> None:
-        self._put(("pb", "/log", Log(timestamp=_stamp(t), level=LEVELS[level], message=text, name=name), t))
+        self.protobuf("/log", Log(timestamp=_stamp(t), level=LEVELS[level], message=text, name=name), t)
 
     def pose(self, topic: str, position, rotation, t: float) -> None:
-        """A pose on ``topic`` and the matching world -> body transform on ``/tf`` (built on the writer thread)."""
+        """A pose on ``topic`` and the matching world -> body transform on ``/tf`` (built by the writer)."""
         self._put(("pose", topic, (np.array(position, float), np.array(rotation, float)), t))
-
-    def _pose_messages(self, topic: str, position, rotation, t: float) -> None:
-        msg = PoseInFrame(timestamp=_stamp(t), frame_id="world")
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
-        o = msg.pose.orientation
-        o.x, o.y, o.z, o.w = matrix_to_quat(rotation)
-        tf = FrameTransform(timestamp=_stamp(t), parent_frame_id="world", child_frame_id="body")
-        tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in position)
-        tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = o.x, o.y, o.z, o.w
-        for top, m in ((topic, msg), ("/tf", tf)):
-            ns = int(t * 1e9)
-            self._writer.add_message(self._channel(top, "pb", type(m)), log_time=ns, data=m.SerializeToString(),
-                                     publish_time=ns)
 
     def scene(self, assembly: Assembly, t: float) -> None:
         """The assembly as cubes (modules) and arrows (thrust axes) in the ``body`` frame."""
@@ -131,66 +145,157 @@ class FlightLog:
             return
         self._items.append(item)
 
-    # -- writer thread -------------------------------------------------------------------------------------------
-    def _channel(self, topic: str, kind: str, message_type) -> int:
-        if topic not in self._channels:
-            if kind == "json":
-                sid = self._writer.register_schema(topic.strip("/").replace("/", "."), "jsonschema", _JSON_SCHEMA)
-                self._channels[topic] = self._writer.register_channel(topic, "json", sid)
-            else:
-                sid = register_schema(self._writer, message_type)
-                self._channels[topic] = self._writer.register_channel(topic, "protobuf", sid)
-        return self._channels[topic]
-
-    def _run(self) -> None:
-        last_flush = time.monotonic()
+    # -- feeder thread ----------------------------------------------------------------------------------------------
+    def _feed(self) -> None:
         try:
-            stopping = False
-            while not stopping:
+            while True:
                 self._activity.wait_end(POLL_S)
-                # Between periods only (or once closing): finish the backlog, message by message.
-                while self._items and (self._activity.may_work(ITEM_BUDGET_S) or self._closed):
-                    item = self._items.popleft()
-                    if item[0] == "stop":
-                        stopping = True
-                        break
-                    self._write(item)
-                if time.monotonic() - last_flush >= FLUSH_S:
-                    self._fh.flush()
-                    last_flush = time.monotonic()
-        except BaseException as exc:  # surfaced to the main loop through .error
-            self.error = exc
+                if not self._items or not (self._activity.may_work(FEED_BUDGET_S) or self._closed):
+                    continue
+                while self._items and (self._activity.may_work(FEED_BUDGET_S) or self._closed):
+                    batch = [self._items.popleft() for _ in range(min(FEED_BATCH, len(self._items)))]
+                    self._send(batch)
+                    if batch[-1][0] == "stop":
+                        return
+        except OSError as exc:  # the writer process is gone; close() reports why
+            self.error = self.error or f"the writer process stopped: {exc}"
 
-    def _write(self, item) -> None:
-        kind, topic, data, t = item
-        if kind == "pose":
-            self._pose_messages(topic, *data, t)
-            return
-        if kind == "json":
-            cid, payload = self._channel(topic, kind, None), json.dumps(data, default=_jsonable).encode()
-        elif kind == "raw":
-            cid, payload = self._channel(topic, kind, data[0]), data[1]
-        else:
-            cid, payload = self._channel(topic, kind, type(data)), data.SerializeToString()
-        ns = int(t * 1e9)
-        self._writer.add_message(cid, log_time=ns, data=payload, publish_time=ns)
+    def _send(self, batch: list) -> None:
+        frame = pickle.dumps(batch, protocol=pickle.HIGHEST_PROTOCOL)
+        self._process.stdin.write(_FRAME.pack(len(frame)) + frame)
+        self._process.stdin.flush()
 
-    def close(self, timeout: float = 10.0) -> None:
+    def close(self, timeout: float = CLOSE_TIMEOUT_S) -> None:
         """Write what is queued, finish the file (summary and footer) and close it. Idempotent."""
         if self._closed:
             return
         self._closed = True
         self._items.append(("stop", None, None, 0.0))
-        self._activity.end()  # wake the writer now (harmless to a loop: it has finished when we close)
+        self._activity.end()  # wake the feeder now (harmless to a loop: it has finished when we close)
         self._thread.join(timeout)
-        self._writer.finish()
-        self._fh.close()
+        try:  # closes the writer's stdin: it finishes the file even if "stop" did not get through
+            out, _ = self._process.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            out, _ = self._process.communicate()
+        status = json.loads(out or b"{}").get("error")
+        self.error = status or self.error
+        if self._process.returncode != 0 and self.error is None:
+            self.error = f"the writer process exited with code {self._process.returncode}"
 
     def __enter__(self) -> FlightLog:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _Writer:
+    """The MCAP file, in the writer process."""
+
+    def __init__(self, path: str, metadata: dict[str, str]) -> None:
+        self._fh = open(path, "wb")  # noqa: SIM115 (closed in finish)
+        self._mcap = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        self._mcap.start(profile="", library="groundstation")
+        for name, data in metadata.items():
+            self._mcap.add_metadata(name, {"value": data})
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        for cls in (PoseInFrame, FrameTransform):  # pose items are built here
+            self._schema(cls.DESCRIPTOR.full_name, build_file_descriptor_set(cls).SerializeToString())
+
+    def _schema(self, name: str, descriptor_set: bytes) -> None:
+        if name not in self._schemas:
+            self._schemas[name] = self._mcap.register_schema(name, "protobuf", descriptor_set)
+
+    def _channel(self, topic: str, schema: str | None) -> int:
+        """The channel of ``topic``: protobuf of ``schema`` (registered before), or JSON if None."""
+        if topic not in self._channels:
+            if schema is None:
+                sid = self._mcap.register_schema(topic.strip("/").replace("/", "."), "jsonschema", _JSON_SCHEMA)
+                self._channels[topic] = self._mcap.register_channel(topic, "json", sid)
+            else:
+                self._channels[topic] = self._mcap.register_channel(topic, "protobuf", self._schemas[schema])
+        return self._channels[topic]
+
+    def _add(self, topic: str, schema: str | None, payload: bytes, t: float) -> None:
+        ns = int(t * 1e9)
+        self._mcap.add_message(self._channel(topic, schema), log_time=ns, data=payload, publish_time=ns)
+
+    def write(self, item) -> None:
+        kind, topic, data, t = item
+        if kind == "schema":
+            self._schema(topic, data)
+        elif kind == "pose":
+            position, rotation = data
+            msg = PoseInFrame(timestamp=_stamp(t), frame_id="world")
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
+            o = msg.pose.orientation
+            o.x, o.y, o.z, o.w = matrix_to_quat(rotation)
+            tf = FrameTransform(timestamp=_stamp(t), parent_frame_id="world", child_frame_id="body")
+            tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in position)
+            tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = o.x, o.y, o.z, o.w
+            self._add(topic, PoseInFrame.DESCRIPTOR.full_name, msg.SerializeToString(), t)
+            self._add("/tf", FrameTransform.DESCRIPTOR.full_name, tf.SerializeToString(), t)
+        elif kind == "json":
+            self._add(topic, None, json.dumps(data, default=_jsonable).encode(), t)
+        else:
+            self._add(topic, data[0], data[1], t)
+
+    def flush(self) -> None:
+        self._fh.flush()
+
+    def finish(self) -> None:
+        self._mcap.finish()
+        self._fh.close()
+
+
+def _frames(fd: int, poll_s: float):
+    """Yield each frame read from ``fd`` (None every ``poll_s`` without one); stop at end of file."""
+    buf = bytearray()
+    while True:
+        ready, _, _ = select.select([fd], [], [], poll_s)
+        if not ready:
+            yield None
+            continue
+        chunk = os.read(fd, 1 << 16)
+        if not chunk:
+            return
+        buf += chunk
+        while len(buf) >= _FRAME.size and len(buf) >= _FRAME.size + _FRAME.unpack_from(buf)[0]:
+            n = _FRAME.unpack_from(buf)[0]
+            yield pickle.loads(bytes(buf[_FRAME.size:_FRAME.size + n]))
+            del buf[:_FRAME.size + n]
+
+
+def _writer_main() -> None:
+    """The writer process: open the file from the first frame, write every batch, flush each second, finish
+    on "stop" or at end of input (the flight process died), and print ``{"error": ...}`` for the flight process."""
+    writer = None
+    error = None
+    try:
+        last_flush = time.monotonic()
+        for batch in _frames(sys.stdin.fileno(), POLL_S):
+            stop = False
+            for item in batch or ():
+                if item[0] == "open":
+                    writer = _Writer(item[1], item[2])
+                elif item[0] == "stop":
+                    stop = True
+                else:
+                    writer.write(item)
+            if stop:
+                break
+            if writer is not None and time.monotonic() - last_flush >= FLUSH_S:
+                writer.flush()
+                last_flush = time.monotonic()
+    except Exception as exc:  # reported to the flight process, which raises it after the flight
+        error = f"{type(exc).__name__}: {exc}"
+    finally:
+        if writer is not None:
+            writer.finish()
+    with contextlib.suppress(OSError):  # nobody left to tell
+        print(json.dumps({"error": error}), flush=True)
 
 
 def recover(src: str | Path, dst: str | Path) -> dict:
@@ -226,3 +331,7 @@ def recover(src: str | Path, dst: str | Path) -> dict:
                 kept += 1
         w.finish()
     return {"messages": kept, "channels": len(chan_map), "source_was_complete": clean}
+
+
+if __name__ == "__main__":
+    _writer_main()

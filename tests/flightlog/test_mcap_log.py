@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from groundstation.cli import main
@@ -18,6 +19,7 @@ WRITER = """
 import sys, time, numpy as np
 from groundstation.flightlog.mcap_log import FlightLog
 log = FlightLog(sys.argv[1], {"config": "{}"})
+print("writer", log.writer_pid, flush=True)
 k = 0
 t0 = time.time()
 while True:
@@ -41,27 +43,57 @@ def test_round_trip_counts(tmp_path):
     assert msgs == list(range(500))
 
 
-def test_sigkill_leaves_a_recoverable_file(tmp_path):
-    path = tmp_path / "killed.mcap"
+def _run_and_kill(path: Path, kill) -> tuple[dict[float, int], float]:
+    """Run WRITER logging to ``path`` for 4 s, then ``kill(proc)`` (``proc.writer_pid``: its writer process);
+    returns {elapsed s: k logged} and the last elapsed s."""
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True,
-                            cwd=ROOT)
+                            cwd=ROOT, start_new_session=True)  # its own process group, as in a terminal
+    proc.writer_pid = int(proc.stdout.readline().split()[1])
     written_by = {}
     t_kill = time.monotonic() + 4.0
     while time.monotonic() < t_kill:
         line = proc.stdout.readline()
         k, t = line.split()
         written_by[float(t)] = int(k)
-    os.kill(proc.pid, signal.SIGKILL)
+    kill(proc)
     proc.wait(timeout=10)
-    last_t = max(written_by)
+    return written_by, max(written_by)
+
+
+def _counts(path: Path) -> list[int]:
+    with open(path, "rb") as fh:
+        return [json.loads(m.data)["k"] for _, _, m in make_reader(fh).iter_messages(topics=["/count"])]
+
+
+@pytest.mark.parametrize("kill", [lambda proc: os.kill(proc.pid, signal.SIGKILL),
+                                  lambda proc: os.killpg(proc.pid, signal.SIGINT)],  # Ctrl-C in the terminal
+                         ids=["sigkill", "sigint-to-the-group"])
+def test_the_writer_outlives_the_flight_process_and_finalizes_the_file(tmp_path, kill):
+    path = tmp_path / "killed.mcap"
+    written_by, last_t = _run_and_kill(path, kill)
+    time.sleep(2.0)  # the writer process sees the pipe close and finishes the file
+    with open(path, "rb") as fh:
+        assert make_reader(fh).get_summary() is not None  # summary and footer written: a seeking reader opens it
+    # everything fed to the writer is there: all but the last few tens of milliseconds before the kill
+    must_have = max(k for t, k in written_by.items() if t <= last_t - 0.1)
+    ks = _counts(path)
+    assert ks[: must_have + 1] == list(range(must_have + 1))
+
+
+def test_sigkill_of_both_processes_leaves_a_recoverable_file(tmp_path):
+    path = tmp_path / "killed.mcap"
+    def kill_both(proc):
+        os.kill(proc.writer_pid, signal.SIGKILL)
+        os.kill(proc.pid, signal.SIGKILL)
+
+    written_by, last_t = _run_and_kill(path, kill_both)
     # everything logged up to about one second before the kill must come back
     must_have = max(k for t, k in written_by.items() if t <= last_t - 1.5)
     out = tmp_path / "recovered.mcap"
     with _argv_exit() as result:
         main(["log", "recover", str(path), str(out)])
     assert result["code"] == 0
-    with open(out, "rb") as fh:
-        ks = [json.loads(m.data)["k"] for _, _, m in make_reader(fh).iter_messages(topics=["/count"])]
+    ks = _counts(out)
     assert ks[: must_have + 1] == list(range(must_have + 1))
     counts = recover(path, tmp_path / "again.mcap")
     assert not counts["source_was_complete"] and counts["channels"] >= 2
@@ -110,3 +142,12 @@ def test_writer_is_off_the_calling_thread(tmp_path):
     enqueue = (time.perf_counter() - t0) / 5000
     log.close()
     assert enqueue < 200e-6  # building two small protobufs and a queue put; the encoding and I/O happen elsewhere
+
+
+def test_writer_failure_is_reported(tmp_path):
+    log = FlightLog(tmp_path / "missing-dir" / "x.mcap")
+    log.record("/count", {"k": 0}, 1000.0)
+    log.close()
+    assert log.error is not None and log.error.startswith("FileNotFoundError")
+    log.record("/count", {"k": 1}, 1001.0)
+    assert log.dropped == 1  # after close: counted, not lost silently
