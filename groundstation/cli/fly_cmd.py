@@ -21,13 +21,14 @@ STATUS_S = 0.2
 """Status line refresh interval, s."""
 
 
-KEYS_HINT = "   l/Ctrl-C: land, k/Ctrl-C twice: stop motors"
+KEYS_HINT = "   l/Ctrl-C: land, k/Ctrl-C x2: stop motors"
 
 
 def status_text(s, width: int) -> str:
     """The status line (rich markup) for a terminal ``width`` columns wide: the key hint only if it fits."""
     battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
-    text = (f"{s.phase:>9} t={s.t:6.1f} s  mocap {s.mocap_age * 1e3:5.1f} ms  worst motor {s.worst_motor:4.0%}"
+    rate = f"{s.rate_hz:3.0f} Hz" if s.rate_hz is not None else "--- Hz"
+    text = (f"{s.phase:>9} t={s.t:6.1f} s  {rate}  mocap {s.mocap_age * 1e3:4.1f} ms  motor {s.worst_motor:4.0%}"
             f"{battery}  late {s.overruns}")
     if len(text) + len(KEYS_HINT) <= width:
         text += KEYS_HINT

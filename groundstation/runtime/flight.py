@@ -37,6 +37,8 @@ from groundstation.runtime.loop import (
 
 AIRBORNE = ("takeoff", "settle", "track", "hold")
 GC_INTERVAL_S = 1.0
+RATE_WINDOW_S = 1.0
+"""The status line's loop rate is the number of periods run over this long, s."""
 """The loop collects Python's young garbage generations about this often, between periods, s."""
 
 
@@ -93,6 +95,8 @@ class Status:
     """Lowest module battery, V (None when the backend does not report it)."""
     overruns: int
     """Late periods so far."""
+    rate_hz: float | None = None
+    """Loop rate measured over the last second, Hz (None during the first second)."""
 
 
 @dataclass
@@ -127,6 +131,9 @@ class Flight:
         self.activity = activity  # marks each period busy for the log writer and other background threads
         self.truth = truth  # optional callable returning the true state (simulation), recorded for metrics
         self.on_status = on_status
+        self._rate_window = (0.0, 0)
+        """(loop time s, periods run) at the start of the current rate window."""
+        self._rate_hz: float | None = None
         self.phase = "preflight"
         self.reason = ""
         self.rec = Recording()
@@ -253,8 +260,8 @@ class Flight:
         if self.log is not None:
             tw = self._t_wall0 + t
             self.log.pose("/state/pose", state.position, state.rotation, tw)
-            # One record per period (fewer, larger messages keep the writer thread's share of the GIL small); the
-            # arrays are fresh each period, so no copies are needed, and the writer thread converts them.
+            # One record per period (fewer, larger messages keep the feeder's share of the GIL small); the arrays
+            # are fresh each period, so no copies are needed, and the writer process converts them.
             st = self._stats
             timing = {"start_error_s": st.start_error[-1], "compute_s": st.compute[-1] if st.compute else 0.0,
                       "overruns": st.overruns} if st is not None and st.start_error else {}
@@ -269,8 +276,11 @@ class Flight:
         if self.on_status is not None:
             battery = float(telemetry.battery_v.min()) if telemetry.battery_v.size else None
             st = self._stats
+            t_w, n_w = self._rate_window
+            if t - t_w >= RATE_WINDOW_S:  # periods actually run, not the configured rate
+                self._rate_hz, self._rate_window = (len(self.rec.t) - n_w) / (t - t_w), (t, len(self.rec.t))
             self.on_status(Status(t, self.phase, age, float(u.max() / self.model.u_max), battery,
-                                  st.overruns if st is not None else 0))
+                                  st.overruns if st is not None else 0, self._rate_hz))
 
     # -- run --------------------------------------------------------------------------------------------------------
     def run(self, clock: Clock, rate_hz: float, realtime: bool = False) -> LoopStats:
@@ -302,8 +312,11 @@ class Flight:
 
         try:
             # Arming is a round trip with some backends (MAVLink waits for every module's answer): done before
-            # the first period so that wait is not a late period.
+            # the first period so that wait is not a late period. So is reading what queued meanwhile (a second
+            # of MAVLink telemetry, 64 mocap samples): the first period then parses one period's worth.
             self.backend.arm()
+            self.backend.telemetry()
+            self.pose.state()
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:

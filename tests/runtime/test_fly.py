@@ -54,6 +54,8 @@ def test_short_figure8_end_to_end(tmp_path):
     assert res.phase == "done" and res.reason == ""
     assert res.metrics["pos_rmse_m"] < 0.03 and res.metrics["max_roll_error_deg"] < 1.0
     assert statuses and all(s.battery_v is None for s in statuses)  # the simulator has no battery
+    rates = [s.rate_hz for s in statuses if s.rate_hz is not None]
+    assert statuses[0].rate_hz is None and rates and abs(np.median(rates) - 250.0) < 2.0  # periods actually run
     counts, meta, logs, motors = read_log(log)
     for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control", "/log", "/loop/timing",
                   "/backend/telemetry", "/flight/summary"):
