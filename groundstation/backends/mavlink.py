@@ -57,6 +57,8 @@ class MavlinkSettings:
 
 HEARTBEAT_S = 1.0
 """Ground-station heartbeat interval, s (PX4's data-link loss check listens for it)."""
+ARM_GRACE_S = 1.0
+"""A disarmed heartbeat this soon after a module acknowledged arming is stale (one PX4 heartbeat interval), s."""
 SETPOINT_LEAD_S = 1.0
 """Zero setpoints streamed before the switch to offboard, s: PX4 refuses offboard without a setpoint stream, and
 its documentation (v1.14 on) asks for more than 1 s of it before arming in offboard."""
@@ -74,6 +76,8 @@ class _Module:
         self.armed = False
         self.offboard = False
         self.terminated = False
+        self.armed_at = -np.inf
+        """When the module acknowledged arming."""
         self.acks: dict[int, int] = {}
         """Last COMMAND_ACK result per command id."""
         self.stop_acked = False
@@ -264,7 +268,11 @@ class MavlinkBackend:
                     if msg.type == mav.MAV_TYPE_GCS or msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
                         continue  # another ground station or a peripheral, not the module's autopilot
                     m.system_id, m.component_id = msg.get_srcSystem(), msg.get_srcComponent()
-                    m.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+                    armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+                    # PX4 acknowledges on its receive thread and sends heartbeats from another: a heartbeat built
+                    # just before arming may arrive after the ACK. Only a later one says the module disarmed.
+                    if armed or now - m.armed_at > ARM_GRACE_S:
+                        m.armed = armed
                     m.offboard = msg.custom_mode == mw.PX4_OFFBOARD_CUSTOM_MODE
                     m.terminated = msg.system_status == mav.MAV_STATE_FLIGHT_TERMINATION
                 elif m.system_id is None:
@@ -273,6 +281,7 @@ class MavlinkBackend:
                     m.acks[msg.command] = msg.result
                     if msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
                         m.armed = msg.result == mav.MAV_RESULT_ACCEPTED and not self._stop_sent
+                        m.armed_at = now if m.armed else m.armed_at
                         m.stop_acked = m.stop_acked or self._stop_sent
                 elif kind == "ATTITUDE":
                     self._gyro[i] = mw.FRD_TO_FLU @ np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])

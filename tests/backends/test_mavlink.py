@@ -1,5 +1,6 @@
 """The MAVLink backend through pymavlink's UDP connections, against simulated PX4 modules speaking MAVLink."""
 
+import threading
 import time
 
 import numpy as np
@@ -8,7 +9,13 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.backends.mavlink import MavlinkArmError, MavlinkBackend, MavlinkLinkError, MavlinkSettings
+from groundstation.backends.mavlink import (
+    ARM_GRACE_S,
+    MavlinkArmError,
+    MavlinkBackend,
+    MavlinkLinkError,
+    MavlinkSettings,
+)
 from sim.mavlink_peer import SimulatedPx4
 from tests import peers
 from tests.peers import ASM, U_MAX, hold, stop_peer
@@ -167,3 +174,49 @@ def test_passthrough_mixer_file_matches_the_wire_convention():
         out = _scale(out_scaler, sum(_scale(sc, controls[i]) for _, i, sc in inputs))
         pwm = 1000 + (out + 1) / 2 * (2000 - 1000)  # PX4's PWM driver: [-1, 1] -> [PWM_MAIN_MIN, PWM_MAIN_MAX]
         assert pwm == pytest.approx(mw.to_pwm(u, U_MAX, 1000, 2000)[q], abs=0.5)
+
+
+def test_a_stale_disarmed_heartbeat_right_after_arming_is_not_a_disarm():
+    """A vehicle whose heartbeat, built before it armed, arrives after its arming ACK (PX4 sends them from
+    different threads): the backend keeps flying; a disarmed heartbeat a second later ends the flight."""
+    vehicle = mavutil.mavlink_connection("udpin:127.0.0.1:14650", source_system=1, source_component=1)
+    stop = threading.Event()
+    disarmed_beat = threading.Event()
+
+    def heartbeat(armed: bool) -> None:
+        vehicle.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_QUADROTOR, mavutil.mavlink.MAV_AUTOPILOT_PX4,
+                                   mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0, 0, 3)
+
+    def serve() -> None:
+        while not stop.is_set():
+            msg = vehicle.recv_match(blocking=True, timeout=0.01)
+            if msg is None:
+                continue
+            if msg.get_type() == "HEARTBEAT":
+                heartbeat(False)
+                vehicle.mav.sys_status_send(0, 0, 0, 0, 4000, -1, -1, 0, 0, 0, 0, 0, 0)
+            elif msg.get_type() == "COMMAND_LONG":
+                vehicle.mav.command_ack_send(msg.command, mavutil.mavlink.MAV_RESULT_ACCEPTED)
+                if msg.command == mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM and msg.param1 == 1:
+                    heartbeat(False)  # the stale one
+            elif disarmed_beat.is_set():
+                heartbeat(False)
+                disarmed_beat.clear()
+            else:
+                vehicle.mav.attitude_send(0, 0, 0, 0, 0, 0, 0)  # keeps the link fresh
+
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    try:
+        with MavlinkBackend(["udpout:127.0.0.1:14650"], U_MAX, ASM.module_rotations[:1]) as be:
+            be.arm()
+            hold(be, np.zeros(4), 0.3)
+            assert be.telemetry().link_ok  # the stale disarmed heartbeat was not taken as a disarm
+            time.sleep(ARM_GRACE_S)
+            disarmed_beat.set()
+            hold(be, np.zeros(4), 0.2)
+            assert not be.telemetry().link_ok  # a fresh one is
+    finally:
+        stop.set()
+        th.join(2)
+        vehicle.close()
