@@ -40,8 +40,6 @@ class _Link:
 class SimulatedCrazyflies(ModulePeer):
     """Crazyflie modules running the motor app, one UDP socket each."""
 
-    protocol = "crtp"
-
     def _open_links(self) -> None:
         c = self.config
         self._links: list[_Link] = []

@@ -55,8 +55,6 @@ class _Vehicle:
 class SimulatedPx4(ModulePeer):
     """PX4 modules in offboard mode with a pass-through mixer, one MAVLink link (UDP port) each."""
 
-    protocol = "mavlink"
-
     def _open_links(self) -> None:
         c = self.config
         self._vehicles: list[_Vehicle] = []

@@ -89,9 +89,6 @@ class ModuleRules:
 class ModulePeer:
     """The modules of one assembly: links (per protocol), firmware rules, physics in real time, mocap on Zenoh."""
 
-    protocol = ""
-    """Names the wire protocol in messages."""
-
     def __init__(self, assembly: Assembly, config: PeerConfig | None = None) -> None:
         self.assembly = assembly
         self.config = c = config or PeerConfig()

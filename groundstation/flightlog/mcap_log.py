@@ -101,6 +101,7 @@ class FlightLog:
         self.error: str | None = None
         """Why the writer failed (None while it works)."""
         self.writer_pid = self._process.pid
+        """The writer process (it outlives this one if this one is killed)."""
         self._thread = threading.Thread(target=self._feed, name="mcap-feeder", daemon=True)
         self._thread.start()
 
