@@ -50,6 +50,12 @@ def applied_command(u, size: int, armed: bool, u_max: float) -> np.ndarray:
     return bounded_command(u, u_max) if armed else np.zeros(size)
 
 
+def body_rate(module_rotations: np.ndarray, module_gyros: np.ndarray) -> np.ndarray:
+    """The body rate (rad/s, body frame) from the modules' gyros, each in its own frame (rigidly joined modules all
+    measure the same rate): each rotated into the body frame, then averaged."""
+    return np.mean(np.einsum("nij,nj->ni", module_rotations, module_gyros), axis=0)
+
+
 @runtime_checkable
 class Backend(Protocol):
     def connect(self) -> None: ...

@@ -23,7 +23,7 @@ import numpy as np
 from cflib.crtp.crtpstack import CRTPPacket
 
 from groundstation.backends import crtp_wire as wire
-from groundstation.backends.base import PreflightReport, Telemetry, applied_command
+from groundstation.backends.base import PreflightReport, Telemetry, applied_command, body_rate
 from groundstation.errors import GroundstationError
 
 
@@ -131,8 +131,7 @@ class CrazyflieBackend:
     def telemetry(self) -> Telemetry:
         self._drain()
         fresh = self._heard >= self._clock() - self.settings.link_timeout
-        # The modules are rigidly joined: each IMU measures the body rate in its own frame.
-        gyro = np.mean(np.einsum("nij,nj->ni", self._rotations, self._gyro), axis=0)
+        gyro = body_rate(self._rotations, self._gyro)
         return Telemetry(stamp=float(np.max(self._heard)) if np.isfinite(self._heard).any() else 0.0,
                          link_ok=bool(self._links) and bool(np.all(fresh)), motors=self._applied.copy(),
                          battery_v=self._battery.copy(), gyro=gyro)

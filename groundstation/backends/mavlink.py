@@ -23,7 +23,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.backends.base import PreflightReport, Telemetry, applied_command
+from groundstation.backends.base import PreflightReport, Telemetry, applied_command, body_rate
 from groundstation.errors import GroundstationError
 
 mav = mavutil.mavlink
@@ -74,7 +74,6 @@ class _Module:
         self.battery_heard = -np.inf
         """When SYS_STATUS last came (it is slower than the rest: 10 Hz on PX4)."""
         self.armed = False
-        self.offboard = False
         self.terminated = False
         self.armed_at = -np.inf
         """When the module acknowledged arming."""
@@ -161,6 +160,7 @@ class MavlinkBackend:
         while self._clock() < lead_end:  # PX4 enters offboard only once setpoints stream
             self._send_controls(np.zeros_like(self._applied))
             time.sleep(0.01)
+            self._drain()
         for m in self._modules:
             m.acks.clear()
             self._command(m, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
@@ -182,8 +182,7 @@ class MavlinkBackend:
         fresh = all(now - m.heard <= self.settings.link_timeout for m in self._modules)
         # A module that disarmed itself (offboard loss, a failsafe) no longer flies: the flight must stop.
         holding = not self._armed or all(m.armed for m in self._modules)
-        # The modules are rigidly joined: each measures the body rate in its own frame.
-        gyro = np.mean(np.einsum("nij,nj->ni", self._rotations, self._gyro), axis=0)
+        gyro = body_rate(self._rotations, self._gyro)
         heard = max((m.heard for m in self._modules), default=-np.inf)
         return Telemetry(stamp=float(heard) if np.isfinite(heard) else 0.0,
                          link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
@@ -273,7 +272,6 @@ class MavlinkBackend:
                     # just before arming may arrive after the ACK. Only a later one says the module disarmed.
                     if armed or now - m.armed_at > ARM_GRACE_S:
                         m.armed = armed
-                    m.offboard = msg.custom_mode == mw.PX4_OFFBOARD_CUSTOM_MODE
                     m.terminated = msg.system_status == mav.MAV_STATE_FLIGHT_TERMINATION
                 elif m.system_id is None:
                     continue  # until the autopilot's heartbeat says who the module is

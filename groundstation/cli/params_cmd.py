@@ -34,7 +34,7 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
     from groundstation.runtime.flight_config import load_flight_config
 
     cfg, base = load_flight_config(flight)
-    wanted = required_params(cfg.backend, base, Path.cwd() / param_file if param_file else None)
+    wanted = required_params(cfg.backend, base, Path(param_file).resolve() if param_file else None)
     n = len(cfg.backend.modules)
     with stderr_console().status("connecting") as status:
         checks = check_modules(cfg.backend, wanted, apply=apply, cache_dir=(base / cfg.log_dir).resolve(),

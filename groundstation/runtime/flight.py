@@ -37,9 +37,9 @@ from groundstation.runtime.loop import (
 
 AIRBORNE = ("takeoff", "settle", "track", "hold")
 GC_INTERVAL_S = 1.0
+"""The loop collects Python's young garbage generations about this often, between periods, s."""
 RATE_WINDOW_S = 1.0
 """The status line's loop rate is the number of periods run over this long, s."""
-"""The loop collects Python's young garbage generations about this often, between periods, s."""
 
 
 class PoseSource(Protocol):
@@ -270,9 +270,9 @@ class Flight:
                                          "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
                                          "motors": u.reshape(-1, 4) / self.model.u_max, "loop": timing}, tw)
             if len(self.rec.t) % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
-                tel = telemetry
-                self.log.record("/backend/telemetry", {"t": t, "link_ok": tel.link_ok, "motors": tel.motors,
-                                                       "battery_v": tel.battery_v, "gyro": tel.gyro}, tw)
+                self.log.record("/backend/telemetry", {"t": t, "link_ok": telemetry.link_ok,
+                                                       "motors": telemetry.motors, "battery_v": telemetry.battery_v,
+                                                       "gyro": telemetry.gyro}, tw)
         if self.on_status is not None:
             battery = float(telemetry.battery_v.min()) if telemetry.battery_v.size else None
             st = self._stats
