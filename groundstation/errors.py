@@ -4,7 +4,9 @@
 
     GroundstationError
      ├── ConfigError        a file or value given by the user is malformed (names the file and key path)
-     └── UsageError         a command-line argument or API argument is out of range
+     ├── UsageError         a command-line argument or API argument is out of range
+     └── BackendError       the modules cannot be reached or refuse (a link will not open, arming refused)
+          └── ArmingError   a module did not arm (nothing spins)
 
 Infeasible designs are results carrying a status, never exceptions.
 """
@@ -32,3 +34,11 @@ class ConfigError(GroundstationError):
 
 class UsageError(GroundstationError):
     """An argument is outside its documented range (e.g. ``n < 1``, an unknown symmetry group)."""
+
+
+class BackendError(GroundstationError):
+    """The modules could not be reached or refused a request: a runtime failure, not bad input."""
+
+
+class ArmingError(BackendError):
+    """A module did not confirm arming; no module is left armed."""

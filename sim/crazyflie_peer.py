@@ -1,40 +1,37 @@
 """Simulated Crazyflie modules on loopback: PyBullet physics behind the modules' real CRTP wire protocol.
 
-One UDP socket per module speaks CRTP exactly as cflib's UDP driver expects (one packet per datagram), runs the
-module motor app's rules (:mod:`groundstation.backends.crtp_wire`: armed flag, supervisor emergency stop that
-locks, a staleness timeout that stops the motors when commands stop arriving) and replies with the module's
-state. It also answers the firmware services cflib's ``Crazyflie`` class uses to connect and to read and write
-parameters (:mod:`sim.crtp_services`), starting from stock parameter values unless ``PeerConfig.params`` sets
-them. The pose goes out over Zenoh (:class:`sim.module_peer.ModulePeer`), so the ground station flies it with the
-Crazyflie backend, in another process, exactly as it would fly hardware:
+One UDP socket per module speaks CRTP exactly as cflib's UDP driver expects (one packet per datagram). Behind it
+each module runs a model of crazyflie-firmware 2026.08 with the motor app flashed (:mod:`sim.crazyflie_firmware`:
+supervisor arming, emergency stop and watchdogs, the app's mailbox and gate, its state stream every 10 ms, the
+parameter services with persistent storage, reboots through cflib's ``PowerSwitch``). The forces the firmware
+outputs become rotor thrust through the platform's map (the assembly's ``module_params.motor_command``, with the
+module's battery voltage), and the pose goes out over Zenoh (:class:`sim.module_peer.ModulePeer`). The ground
+station flies it with the Crazyflie backend, in another process, exactly as it would fly hardware:
 
     groundstation sim-peer configs/assemblies/toy_v2.json --port 19850 --mocap tcp/127.0.0.1:7448
 
-Modules listen on ``port, port + 1, ...`` in assembly order.
+Modules listen on ``port, port + 1, ...`` in assembly order. The state stream goes to the address the ground
+station last sent from (a radio link carries it back in the acknowledgements of the ground station's packets).
 """
 
 from __future__ import annotations
 
 import contextlib
 import socket
+import time
 
 import numpy as np
 
-from groundstation.backends import crtp_wire as wire
-from sim.crtp_services import FirmwareServices, stock_params
+from sim.crazyflie_firmware import FirmwareBuild, SimulatedCrazyflie
 from sim.module_peer import ModulePeer
 
 
 class _Link:
-    def __init__(self, sock: socket.socket, firmware: FirmwareServices) -> None:
+    def __init__(self, sock: socket.socket, firmware: SimulatedCrazyflie) -> None:
         self.sock = sock
         self.peer: tuple | None = None
-        """Address of the ground station (learnt from its first packet)."""
-        self.sequence = 0
-        """Sequence number of the last command applied."""
-        self.last_reply = -np.inf
+        """Address of the ground station (learnt from its packets)."""
         self.firmware = firmware
-        """The module's parameters and connection-setup services."""
 
 
 class SimulatedCrazyflies(ModulePeer):
@@ -42,19 +39,28 @@ class SimulatedCrazyflies(ModulePeer):
 
     def _open_links(self) -> None:
         c = self.config
+        if self.assembly.params.motor_command is None:
+            raise ValueError("the assembly's module_params has no motor_command: a simulated Crazyflie needs the "
+                             "thrust map of its platform")
+        build = FirmwareBuild(platform=c.platform, motor_app=c.motor_app)
         self._links: list[_Link] = []
         for i in range(self.assembly.n):
-            firmware = FirmwareServices(stock_params())
-            for name, value in c.params:
-                firmware.set(name, value)
+            firmware = SimulatedCrazyflie(build, time.monotonic(), c.params)
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self._links.append(_Link(s, firmware))
             s.bind((c.host, c.port + i))
             s.setblocking(False)
 
-    def firmware(self, i: int) -> FirmwareServices:
-        """Module i's parameters."""
+    def firmware(self, i: int) -> SimulatedCrazyflie:
+        """Module i's firmware (parameters, supervisor, app)."""
         return self._links[i].firmware
+
+    def armed(self, i: int) -> bool:
+        fw = self.firmware(i)
+        return fw.supervisor.motors_allowed and fw.app.latest is not None and fw.app.latest.armed
+
+    def locked(self, i: int) -> bool:
+        return self.firmware(i).supervisor.locked
 
     def _close_links(self) -> None:
         for link in getattr(self, "_links", []):
@@ -63,8 +69,7 @@ class SimulatedCrazyflies(ModulePeer):
 
     def _serve(self, now: float) -> None:
         c = self.config
-        u_max = self.assembly.params.u_max
-        for i, (link, m) in enumerate(zip(self._links, self.modules, strict=True)):
+        for i, link in enumerate(self._links):
             while True:
                 try:
                     data, addr = link.sock.recvfrom(64)
@@ -72,29 +77,17 @@ class SimulatedCrazyflies(ModulePeer):
                     break
                 self.packets += 1
                 link.peer = addr
-                if not data:
-                    continue
-                head, body = data[0], data[1:]
-                if head == wire.NULL_HEADER:
-                    link.last_reply = -np.inf  # a probe: answer now
-                elif head == wire.STOP_HEADER and body[:1] == bytes([wire.CMD_EMERGENCY_STOP]):
-                    m.emergency_stop()
-                elif head == wire.APP_HEADER:
-                    try:
-                        cmd = wire.MotorCommand.unpack(body)
-                    except ValueError:
-                        continue
-                    link.sequence = cmd.sequence
-                    m.arm(cmd.armed)
-                    m.command(wire.from_counts(cmd.counts, u_max), now)
-                else:
-                    for reply in link.firmware.handle(head, body) or ():
-                        with contextlib.suppress(OSError):
-                            link.sock.sendto(reply, addr)
-            if link.peer is not None and now - link.last_reply >= 1.0 / c.state_rate_hz:
-                st = wire.ModuleState(link.sequence, m.armed, m.stopped,
-                                      tuple(wire.to_counts(self.module_motors(i), u_max)), c.battery_v,
-                                      tuple(float(v) for v in self.module_gyro(i)))
+                for reply in link.firmware.handle(data, now):
+                    with contextlib.suppress(OSError):
+                        link.sock.sendto(reply, addr)
+            link.firmware.step(now)
+            if link.peer is not None and link.firmware.state_due(now):
+                packet = link.firmware.state_packet(now, c.battery_v, self.module_gyro(i))
                 with contextlib.suppress(OSError):  # the ground station went away: motors stop on the timeout
-                    link.sock.sendto(bytes([wire.APP_HEADER]) + st.pack(), link.peer)
-                link.last_reply = now
+                    link.sock.sendto(packet, link.peer)
+
+    def _rotor_inputs(self, now: float) -> np.ndarray:
+        params = self.assembly.params
+        forces = np.array([link.firmware.forces(now) for link in self._links])
+        thrust = params.motor_command.thrust(forces, np.full(len(self._links), self.config.battery_v))
+        return (thrust / params.c_f).reshape(-1)

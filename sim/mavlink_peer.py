@@ -35,6 +35,43 @@ HEARTBEAT_S = 1.0
 SYS_STATUS_S = 0.1
 
 
+class Px4Rules:
+    """What one PX4 module enforces in offboard mode: thrust only while armed, not terminated, and setpoints
+    fresh (``COM_OF_LOSS_T``)."""
+
+    def __init__(self) -> None:
+        self.u = np.zeros(4)
+        """Rotor inputs last commanded, rad^2/s^2."""
+        self.armed = False
+        self.stopped = False
+        """Emergency-stopped: latches until the module restarts."""
+        self.last_command = -np.inf
+        """Monotonic time of the last motor command, s."""
+
+    def command(self, u: np.ndarray, now: float) -> None:
+        self.last_command = now
+        self.u = u if self.armed else np.zeros(4)
+
+    def arm(self, armed: bool) -> None:
+        self.armed = armed and not self.stopped
+        if not self.armed:
+            self.u = np.zeros(4)
+
+    def emergency_stop(self) -> None:
+        self.stopped = True
+        self.arm(False)
+
+    def enforce_timeout(self, now: float, timeout: float) -> bool:
+        """Disarm when no command arrived for ``timeout`` s while armed; True if that happened now."""
+        if self.armed and now - self.last_command > timeout:
+            self.arm(False)
+            return True
+        return False
+
+    def thrust(self) -> np.ndarray:
+        return self.u if self.armed and not self.stopped else np.zeros(4)
+
+
 class _Vehicle:
     def __init__(self, conn, system_id: int, state_interval: float, params: dict[str, list]) -> None:
         self.conn = conn
@@ -57,6 +94,7 @@ class SimulatedPx4(ModulePeer):
 
     def _open_links(self) -> None:
         c = self.config
+        self.modules = [Px4Rules() for _ in range(self.assembly.n)]
         self._vehicles: list[_Vehicle] = []
         for i in range(self.assembly.n):
             params = {name: [value, kind] for name, (value, kind) in STOCK_PARAMS.items()}
@@ -73,7 +111,19 @@ class SimulatedPx4(ModulePeer):
         return self._vehicles[i].params[name][0]
 
     def command_timeout(self, i: int) -> float:
+        """Offboard loss: module i disarms when no setpoint arrived for this long, s."""
         return self.param(i, "COM_OF_LOSS_T")
+
+    def _rotor_inputs(self, now: float) -> np.ndarray:
+        for i, m in enumerate(self.modules):
+            m.enforce_timeout(now, self.command_timeout(i))
+        return np.concatenate([m.thrust() for m in self.modules])
+
+    def armed(self, i: int) -> bool:
+        return self.modules[i].armed
+
+    def locked(self, i: int) -> bool:
+        return self.modules[i].stopped
 
     def _close_links(self) -> None:
         for v in getattr(self, "_vehicles", []):

@@ -1,9 +1,9 @@
 """Simulated modules in another process: PyBullet in real time behind a module wire protocol, pose on Zenoh.
 
 The ground station flies such a peer with its hardware backend, through the real link library, exactly as it
-would fly hardware. :class:`ModulePeer` holds what every protocol shares (physics in real time, the virtual mocap,
-the rules a module's firmware applies: armed flag, latching emergency stop, command staleness timeout); each
-protocol (:mod:`sim.crazyflie_peer`, :mod:`sim.mavlink_peer`) opens its links and serves its packets.
+would fly hardware. :class:`ModulePeer` holds what every protocol shares (physics in real time, the virtual
+mocap); each protocol (:mod:`sim.crazyflie_peer`, :mod:`sim.mavlink_peer`) models its modules' firmware, opens its
+links, serves its packets and says what reaches the rotors.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -38,52 +39,18 @@ class PeerConfig:
     physics_hz: float = 240.0
     motor_time_constant: float = 0.02
     """s"""
-    command_timeout: float = 0.1
-    """The Crazyflie motor app stops its motors when no command arrived for this long, s (PX4 modules use their
-    ``COM_OF_LOSS_T`` parameter instead)."""
     state_rate_hz: float = 100.0
-    """Module state replies, Hz (every command is applied; replies are rate-limited like a radio's acks)."""
+    """PX4 modules: state streams, Hz (the Crazyflie motor app reports every 10 ms)."""
     battery_v: float = 4.0
     """V"""
     params: tuple[tuple[str, float], ...] = ()
-    """Firmware parameters set on every module before it starts (a module already configured); the others keep
-    their stock values."""
-
-
-class ModuleRules:
-    """What one module's firmware enforces, whatever the protocol: thrust only while armed, not stopped, fresh."""
-
-    def __init__(self) -> None:
-        self.u = np.zeros(4)
-        """Rotor inputs last commanded, rad^2/s^2."""
-        self.armed = False
-        self.stopped = False
-        """Emergency-stopped: latches until the module restarts."""
-        self.last_command = -np.inf
-        """Monotonic time of the last motor command, s."""
-
-    def command(self, u: np.ndarray, now: float) -> None:
-        self.last_command = now
-        self.u = u if self.armed else np.zeros(4)
-
-    def arm(self, armed: bool) -> None:
-        self.armed = armed and not self.stopped
-        if not self.armed:
-            self.u = np.zeros(4)
-
-    def emergency_stop(self) -> None:
-        self.stopped = True
-        self.arm(False)
-
-    def enforce_timeout(self, now: float, timeout: float) -> bool:
-        """Disarm when no command arrived for ``timeout`` s while armed; True if that happened now."""
-        if self.armed and now - self.last_command > timeout:
-            self.arm(False)
-            return True
-        return False
-
-    def thrust(self) -> np.ndarray:
-        return self.u if self.armed and not self.stopped else np.zeros(4)
+    """Firmware parameters set on every module before it starts (a module already configured: on a Crazyflie
+    they are stored, so they survive a reboot); the others keep their stock values."""
+    platform: Literal["cf2", "cf21bl", "bolt"] = "bolt"
+    """Crazyflie platform of the modules (the paper's 0.24 kg modules are Bolt builds): whether the supervisor
+    must be asked to arm, and which thrust map the firmware applies (the assembly's ``motor_command``)."""
+    motor_app: bool = True
+    """Crazyflie: the motor app is flashed (False: stock firmware, which the ground station must refuse)."""
 
 
 class ModulePeer:
@@ -92,7 +59,6 @@ class ModulePeer:
     def __init__(self, assembly: Assembly, config: PeerConfig | None = None) -> None:
         self.assembly = assembly
         self.config = c = config or PeerConfig()
-        self.modules = [ModuleRules() for _ in range(assembly.n)]
         self._session = None
         self._publisher = None
         self._vmocap = None
@@ -110,12 +76,20 @@ class ModulePeer:
         raise NotImplementedError
 
     def _serve(self, now: float) -> None:
-        """Read every pending packet, apply it to :attr:`modules`, and reply at ``state_rate_hz``."""
+        """Read every pending packet, apply it to the modules' firmware, and send what is due."""
         raise NotImplementedError
 
-    def command_timeout(self, i: int) -> float:
-        """Module i stops its motors when no command arrived for this long, s."""
-        return self.config.command_timeout
+    def _rotor_inputs(self, now: float) -> np.ndarray:
+        """What the modules' firmware drives the rotors with now, (4n,) rad^2/s^2."""
+        raise NotImplementedError
+
+    def armed(self, i: int) -> bool:
+        """Module i would spin its motors on a command."""
+        raise NotImplementedError
+
+    def locked(self, i: int) -> bool:
+        """Module i is emergency-stopped (until it restarts)."""
+        raise NotImplementedError
 
     # -- shared -------------------------------------------------------------------------------------------------
     def _observe(self, t: float, state) -> None:
@@ -134,7 +108,7 @@ class ModulePeer:
         self._vmocap = VirtualMocap(self._publisher, c.mocap_rate_hz, c.position_noise, c.attitude_noise,
                                     c.mocap_latency)
         self.sim.connect()
-        self.sim.arm()  # the per-module rules gate the rotors
+        self.sim.arm()  # each module's firmware model gates its rotors
 
     def close(self) -> None:
         self._close_links()
@@ -154,9 +128,7 @@ class ModulePeer:
         while not self.stop_event.is_set() and (duration is None or k * dt < duration):
             now = time.monotonic()
             self._serve(now)
-            for i, m in enumerate(self.modules):
-                m.enforce_timeout(now, self.command_timeout(i))
-            self.sim.send(np.concatenate([m.thrust() for m in self.modules]))
+            self.sim.send(self._rotor_inputs(now))
             k += 1
             self.sim.advance_to(k * dt)
             remaining = t0 + k * dt - time.monotonic()

@@ -143,7 +143,13 @@ class PyBulletBackend:
         return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
                          gyro=gyro)
 
+    def disarm(self) -> None:
+        """Zero command, disarmed: the rotors spin down through their lag."""
+        self._armed = False
+        self._u_cmd[:] = 0.0
+
     def emergency_stop(self) -> None:
+        """Rotors stopped at once."""
         self._armed = False
         self._u_cmd[:] = 0.0
         self._u[:] = 0.0

@@ -64,7 +64,7 @@ def check_commands_and_state(be, peer: ModulePeer) -> None:
     assert be.telemetry().motors.max() == 0.0  # at once, not after a round trip
     hold(be, np.full(8, 0.5 * U_MAX), 0.3)
     assert be.telemetry().motors.max() == 0.0  # disarmed, and the modules latched the stop
-    assert all(m.stopped and not m.armed for m in peer.modules)
+    assert all(peer.locked(i) and not peer.armed(i) for i in range(ASM.n))
 
 
 def check_link_loss(be, peer: ModulePeer, th: threading.Thread, timeout: float) -> None:

@@ -8,6 +8,7 @@ from pydantic import ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from groundstation import config
+from groundstation.assembly.motor_map import MotorCommandMap
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -48,6 +49,10 @@ class ModuleParams:
     """Half sizes of the box that bounds one module's frame and rotors (x, y, z, module frame), m: used for
     ground contact in simulation and for drawings."""
 
+    motor_command: MotorCommandMap | None = None
+    """How rotor thrust becomes the module firmware's command (``[motor_command]``, see
+    :mod:`groundstation.assembly.motor_map`); needed to fly Crazyflie modules, not for design or simulation."""
+
     @model_validator(mode="after")
     def _capsule_ordered(self) -> ModuleParams:
         if self.capsule_b <= self.capsule_a:
@@ -56,7 +61,15 @@ class ModuleParams:
             raise ValueError("inertia must be positive")
         if min(self.frame_half_extents) <= 0:
             raise ValueError("frame_half_extents must be positive")
+        if self.motor_command is not None:
+            reach = float(self.motor_command.max_thrust(self._map_reference_v())[0])
+            if reach < self.c_f * self.u_max * (1 - 1e-9):
+                raise ValueError(f"motor_command reaches {reach:.3g} N per rotor at full command, less than "
+                                 f"c_f u_max = {self.c_f * self.u_max:.3g} N")
         return self
+
+    def _map_reference_v(self) -> float:
+        return self.motor_command.reference_battery_v or 0.0
 
     @property
     def max_thrust_per_module(self) -> float:

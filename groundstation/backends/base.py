@@ -2,7 +2,9 @@
 
 Implemented by ``sim`` (PyBullet), the Crazyflie and MAVLink backends, and an in-package fake.
 Motor commands are rotor inputs ``u = Omega^2`` in rad^2/s^2, in assembly rotor order (module-major, q = 1..4);
-a backend converts them to its wire format at its edge and never sends more than ``u_max``.
+a backend converts them to its wire format at its edge and never sends more than ``u_max``. A flight ends with
+:meth:`Backend.disarm` after a normal landing (the modules can fly again) and with :meth:`Backend.emergency_stop`
+on every other path (real modules latch it until they are rebooted).
 """
 
 from __future__ import annotations
@@ -32,6 +34,12 @@ class Telemetry:
     gyro: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Body angular rate from the modules' IMUs, rad/s, body frame (empty when not streamed). Mocap gives the
     pose; differentiating it for the rate is too late and too noisy for the attitude loop."""
+    link_latency_s: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    """Per-module round trip of a command, s (median over a recent window; NaN until measured; empty when the
+    backend does not measure it)."""
+    link_loss: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    """Per-module fraction of recent commands the module did not accept (lost or reordered; NaN until measured;
+    empty when not measured)."""
 
 
 def bounded_command(u: np.ndarray, u_max: float) -> np.ndarray:
@@ -63,5 +71,6 @@ class Backend(Protocol):
     def arm(self) -> None: ...
     def send(self, u: np.ndarray) -> None: ...
     def telemetry(self) -> Telemetry: ...
+    def disarm(self) -> None: ...
     def emergency_stop(self) -> None: ...
     def close(self) -> None: ...

@@ -1,34 +1,58 @@
-"""Crazyflie modules over cflib's CRTP link drivers: one link per module, motor commands on the app channel.
+"""Crazyflie modules over cflib's CRTP link drivers: one link per module, forces on the app channel.
 
-Each module runs the motor app described in ``firmware_params/README.md``; :mod:`groundstation.backends.crtp_wire`
-holds the packets. A link is a cflib link driver chosen by URI (``radio://0/80/2M/E7E7E7E701`` for a Crazyradio,
-``udp://127.0.0.1:19850`` for a simulated module), used directly rather than through ``cflib.crazyflie.Crazyflie``:
-the control loop needs one small packet per module per period and nothing of the connection set-up (TOC
-download, parameters) on its path. Sending is a socket or USB write on the caller's thread; replies are
-collected by cflib's receive thread and drained without blocking by :meth:`CrazyflieBackend.telemetry`.
+Each module runs the motor app (``firmware/crazyflie_app``, crazyflie-firmware >= 2026.04);
+:mod:`groundstation.backends.crtp_wire` holds the packets. A link is a cflib link driver chosen by URI
+(``radio://0/80/2M/E7E7E7E701`` for a Crazyradio, ``udp://127.0.0.1:19850`` for a simulated module), used
+directly rather than through ``cflib.crazyflie.Crazyflie``: the control loop needs one small packet per module
+per period and nothing of the connection set-up (TOC download, parameters) on its path.
 
-Safety at this edge: commands are bounded (``applied_command``) and carry the armed flag, so a module ignores
-them until armed; :meth:`emergency_stop` sends the supervisor's emergency stop and a disarmed zero command to
-every module; a module whose state has not arrived for ``link_timeout`` makes ``link_ok`` False, and the flight
-stops. The module app has its own staleness timeout, so a ground station that dies stops the motors too.
+Sending never blocks the control loop. Over UDP a send is one datagram. cflib's radio driver takes one packet at a
+time and its ``send_packet`` waits until the radio thread has taken the previous one (each link's transactions go
+through the dongle's one shared thread, ~450-500 a second per dongle): radio links therefore send from a thread of
+their own, which always sends the newest command (older ones are superseded) after any pending control packet
+(arming, emergency stop). :mod:`groundstation.backends.radio_budget` refuses configurations a dongle cannot carry.
+
+Link quality is measured from what the app reports: the round trip from the send time of the command whose
+sequence a state echoes, and the loss from the app's count of accepted commands against the sequence numbers it
+saw go by (a reordered or lost command is not accepted). Both are per module over ``quality_window`` and reach the
+flight in :class:`~groundstation.backends.base.Telemetry`, whose failsafe policy acts on them.
+
+Safety at this edge: commands are bounded (``applied_command``) and carry the armed flag, so a module ignores them
+until armed; :meth:`arm` asks each module's supervisor to arm (Bolt and 2.1 Brushless builds require it) and
+raises :class:`~groundstation.errors.ArmingError` unless all confirm; :meth:`disarm` ends a flight normally
+(zero forces, supervisor disarmed: the module can fly again without a reboot); :meth:`emergency_stop` sends the
+supervisor's stop and the legacy one (firmware before 2026.04 drops the first), which lock the module until it
+is rebooted. A module whose state stopped for ``link_timeout`` makes ``link_ok`` False, and the flight stops; the
+app stops its motors by itself 100 ms after the last command.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 from cflib.crtp.crtpstack import CRTPPacket
 
+from groundstation.assembly.module import ModuleParams
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.base import PreflightReport, Telemetry, applied_command, body_rate
-from groundstation.errors import GroundstationError
+from groundstation.errors import ArmingError, BackendError
+
+ARM_RETRY_S = 0.05
+"""Interval between repeats of an unanswered supervisor request, s."""
+DISARM_CONFIRM_S = 0.3
+"""How long closing the backend waits for the modules to confirm a normal disarm, s."""
+STOP_REPEATS = 3
+"""Emergency stops sent per module (each one latches; repeats cover a lost packet)."""
+MIN_LOSS_SAMPLES = 10
+"""Fewest commands in the quality window for a loss figure."""
 
 
-class CrazyflieLinkError(GroundstationError):
-    """A module's link could not be opened."""
+class CrazyflieLinkError(BackendError):
+    """A module's link could not be opened (no dongle, bad address)."""
 
 
 _drivers_ready = threading.Lock()
@@ -60,132 +84,391 @@ def _link_driver(uri: str, on_error):
     return driver
 
 
+class _ThreadSender:
+    """Sends for a link whose send blocks (cflib's radio driver), on a thread of its own: pending control packets
+    first, then the newest command; a command not yet sent when a newer one comes is superseded."""
+
+    def __init__(self, driver, name: str) -> None:
+        self._driver = driver
+        self._cond = threading.Condition()
+        self._priority: deque = deque()
+        self._latest: CRTPPacket | None = None
+        self._closed = False
+        self.superseded = 0
+        """Commands replaced by a newer one before the radio could take them."""
+        self._thread = threading.Thread(target=self._run, name=f"crtp-send-{name}", daemon=True)
+        self._thread.start()
+
+    def post(self, pk: CRTPPacket, priority: bool = False) -> None:
+        with self._cond:
+            if priority:
+                self._priority.append(pk)
+            else:
+                self.superseded += self._latest is not None
+                self._latest = pk
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._closed or self._priority or self._latest is not None)
+                if self._priority:
+                    pk = self._priority.popleft()
+                elif self._latest is not None:
+                    pk, self._latest = self._latest, None
+                else:
+                    return  # closed, nothing left
+            self._driver.send_packet(pk)
+
+    def close(self, timeout: float = 1.0) -> None:
+        with self._cond:
+            self._closed = True
+            self._latest = None
+            self._cond.notify()
+        self._thread.join(timeout)
+
+
+class _DirectSender:
+    """Sends on the caller's thread, for drivers whose send does not wait (UDP: one datagram)."""
+
+    superseded = 0
+
+    def __init__(self, driver) -> None:
+        self._driver = driver
+
+    def post(self, pk: CRTPPacket, priority: bool = False) -> None:
+        self._driver.send_packet(pk)
+
+    def close(self, timeout: float = 1.0) -> None:
+        pass
+
+
+def _sender_for(driver, name: str):
+    from cflib.crtp.radiodriver import RadioDriver
+
+    return _ThreadSender(driver, name) if isinstance(driver, RadioDriver) else _DirectSender(driver)
+
+
 @dataclass(frozen=True)
 class CrazyflieSettings:
     link_timeout: float = 0.1
     """A module whose state is older than this is lost, s."""
     min_battery_v: float = 3.5
-    """Preflight: lowest acceptable battery voltage, V (per cell of a 1S module)."""
+    """Preflight: lowest acceptable battery voltage, V."""
     preflight_timeout: float = 1.0
-    """Preflight: how long to wait for every module's state, s."""
+    """Preflight: how long to wait for every module's answers, s."""
+    arm_timeout: float = 1.0
+    """How long :meth:`CrazyflieBackend.arm` waits for every supervisor to confirm, s."""
+    quality_window: float = 0.5
+    """Round trip and loss are taken over the states of this last stretch, s."""
+    max_latency: float = 0.015
+    """Preflight: largest acceptable command round trip (median over the window), s."""
+    max_loss: float = 0.1
+    """Preflight: largest acceptable fraction of commands lost or reordered."""
+
+
+@dataclass(frozen=True, eq=False)
+class LinkQuality:
+    """Per module, over the last ``quality_window``."""
+
+    latency_s: np.ndarray
+    """Median round trip of a command (send to the state that echoes it), s; NaN until measured."""
+    loss: np.ndarray
+    """Fraction of commands the module did not accept (lost, reordered, duplicated); NaN until measured."""
+
+
+class _Module:
+    """What the backend knows of one module."""
+
+    def __init__(self, driver, sender) -> None:
+        self.driver = driver
+        self.sender = sender
+        self.heard = -np.inf
+        """When the newest state arrived (poll time), s."""
+        self.state: wire.ModuleState | None = None
+        self.version: int | None = None
+        """CRTP protocol version the firmware reported."""
+        self.arm_reply: tuple[bool, bool] | None = None
+        """(granted, armed) of the newest supervisor answer."""
+        self.samples: deque = deque()
+        """(time, echoed sequence, accepted count) of recent states, for the loss."""
+        self.rtts: deque = deque()
+        """(time, round trip) of recent states that echoed a new sequence."""
 
 
 class CrazyflieBackend:
     """``n`` Crazyflie modules of one assembly, in assembly order (module i drives rotors 4i..4i+3)."""
 
-    def __init__(self, uris: list[str] | tuple[str, ...], u_max: float, module_rotations: np.ndarray,
+    def __init__(self, uris: list[str] | tuple[str, ...], module: ModuleParams, module_rotations: np.ndarray,
                  settings: CrazyflieSettings | None = None, clock=time.monotonic) -> None:
         if len(uris) != len(module_rotations):
             raise ValueError(f"{len(uris)} links for {len(module_rotations)} modules")
+        if module.motor_command is None:
+            raise ValueError("the module parameters have no motor_command: the Crazyflie backend needs the "
+                             "platform's thrust map")
         self.uris = tuple(uris)
-        self.u_max = u_max
+        self.module = module
+        self.u_max = module.u_max
         self.settings = settings or CrazyflieSettings()
+        self._map = module.motor_command
         self._rotations = np.asarray(module_rotations, float)
         self._clock = clock
-        self._links: list = []
+        self._modules: list[_Module] = []
         self._errors: list[str] = []
         self._armed = False
+        self._disarm_requested = False
+        self._stop_sent = False
         self._seq = 0
+        self._sent = 0
+        """Commands sent per module by this backend (its sequence numbers are 1..sent, mod 65536)."""
+        self._sent_at = np.full(1 << 16, np.nan)
+        """Send time of each sequence number, s."""
         n = len(uris)
-        self._heard = np.full(n, -np.inf)
-        self._applied = np.zeros(4 * n)
+        self._counts = np.zeros((n, 4))
+        """Normalized forces each module reports applied."""
         self._battery = np.zeros(n)
         self._gyro = np.zeros((n, 3))
-        self._stopped = np.zeros(n, bool)
-        self._stop_sent = False
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
-        if self._links:
+        if self._modules:
             return
         try:
-            for uri in self.uris:
-                self._links.append(_link_driver(uri, lambda msg, uri=uri: self._errors.append(f"{uri}: {msg}")))
+            for i, uri in enumerate(self.uris):
+                driver = _link_driver(uri, lambda msg, uri=uri: self._errors.append(f"{uri}: {msg}"))
+                self._modules.append(_Module(driver, _sender_for(driver, f"m{i}")))
         except CrazyflieLinkError:
             self.close()
             raise
-        self._send_all(np.zeros(4 * len(self.uris)), armed=False)
+        self._send_all(np.zeros((len(self.uris), 4)), armed=False)
 
     def preflight(self) -> PreflightReport:
-        if not self._links:
+        """Every module answers with a recent enough firmware running the motor app, unlocked, with battery and
+        link quality good enough; streams disarmed zeros meanwhile (nothing spins)."""
+        if not self._modules:
             return PreflightReport(False, ("not connected",))
-        deadline = self._clock() + self.settings.preflight_timeout
+        s = self.settings
         since = self._clock()
-        while self._clock() < deadline and not np.all(self._heard >= since):
-            self._send_all(np.zeros(4 * len(self.uris)), armed=False)
+        deadline = since + s.preflight_timeout
+        settled = since + max(s.quality_window, 0.3)
+        while self._clock() < deadline:
+            for m in self._modules:
+                if m.version is None:
+                    m.sender.post(CRTPPacket(wire.VERSION_HEADER, bytes([wire.GET_PROTOCOL_VERSION])), True)
+            self._send_all(np.zeros((len(self._modules), 4)), armed=False)
             time.sleep(0.01)
             self._drain()
-        issues = [f"module {i} ({uri}) does not answer" for i, uri in enumerate(self.uris) if self._heard[i] < since]
-        issues += [f"module {i} battery {v:.2f} V < {self.settings.min_battery_v:g} V"
-                   for i, v in enumerate(self._battery) if self._heard[i] >= since and v < self.settings.min_battery_v]
-        issues += [f"module {i} is emergency-stopped (restart it)" for i in np.flatnonzero(self._stopped)]
+            heard_all = all(m.version is not None and m.heard >= since for m in self._modules)
+            if heard_all and self._clock() >= settled:
+                break
+        quality = self.link_quality()
+        issues = []
+        for i, (uri, m) in enumerate(zip(self.uris, self._modules, strict=True)):
+            name = f"module {i} ({uri})"
+            if m.version is None and m.heard < since:
+                issues.append(f"{name} does not answer")
+                continue
+            if m.version is not None and m.version < wire.MIN_PROTOCOL_VERSION:
+                issues.append(f"{name} runs firmware with CRTP protocol {m.version}; the motor app needs "
+                              f">= {wire.MIN_PROTOCOL_VERSION} (crazyflie-firmware 2026.04 or newer)")
+            if m.heard < since:
+                issues.append(f"{name} sends no motor-app state: flash firmware/crazyflie_app (motorApp.version "
+                              f"{wire.APP_VERSION})")
+                continue
+            if m.state.locked:
+                issues.append(f"{name} is locked by an emergency stop or watchdog: reboot it")
+            if self._battery[i] < s.min_battery_v:
+                issues.append(f"module {i} battery {self._battery[i]:.2f} V < {s.min_battery_v:g} V")
+            reach = float(self._map.max_thrust(self._battery[i])[0])
+            need = self.module.c_f * self.u_max
+            if reach < need * (1 - 1e-6):
+                issues.append(f"{name} reaches {reach:.3g} N per rotor at {self._battery[i]:.2f} V; the assembly "
+                              f"assumes up to c_f u_max = {need:.3g} N")
+            if quality.latency_s[i] > s.max_latency:
+                issues.append(f"{name} link round trip {quality.latency_s[i] * 1e3:.0f} ms > "
+                              f"{s.max_latency * 1e3:g} ms")
+            if quality.loss[i] > s.max_loss:
+                issues.append(f"{name} loses {quality.loss[i]:.0%} of commands (> {s.max_loss:.0%})")
         return PreflightReport(not issues, tuple(issues))
 
     def arm(self) -> None:
+        """Ask every module's supervisor to arm; raises ArmingError (nothing armed) unless all confirm within
+        ``arm_timeout``. Flight must follow at once: a supervisor disarms after 30 s armed without flying."""
+        if not self._modules:
+            raise ArmingError("not connected")
+        for m in self._modules:
+            m.arm_reply = None
+        pending = set(range(len(self._modules)))
+        refused: dict[int, str] = {}
+        deadline = self._clock() + self.settings.arm_timeout
+        while pending and self._clock() < deadline:
+            for i in pending:
+                self._modules[i].sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, wire.arm_request(True)), True)
+            wait_end = min(self._clock() + ARM_RETRY_S, deadline)
+            while pending and self._clock() < wait_end:
+                time.sleep(0.005)
+                self._drain()
+                for i in list(pending):
+                    reply = self._modules[i].arm_reply
+                    if reply is not None and reply[1]:
+                        pending.discard(i)
+                    elif reply is not None and not reply[0]:
+                        pending.discard(i)
+                        refused[i] = "its supervisor refused (locked, tumbled or not ready: reboot or level it)"
+        for i in pending:
+            refused[i] = f"no answer to the arming request within {self.settings.arm_timeout:g} s"
+        if refused:
+            self._request_disarm()
+            raise ArmingError("; ".join(f"module {i} ({self.uris[i]}): {why}" for i, why in sorted(refused.items())))
         self._armed = True
+        self._disarm_requested = False
 
     def send(self, u: np.ndarray) -> None:
         """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; modules ignore them unless armed."""
-        self._send_all(applied_command(u, self._applied.size, self._armed, self.u_max), armed=self._armed)
+        u = applied_command(u, self._counts.size, self._armed, self.u_max)
+        thrust = (self.module.c_f * u).reshape(-1, 4)
+        self._send_all(self._map.fractions(thrust, self._battery), armed=self._armed)
 
     def telemetry(self) -> Telemetry:
         self._drain()
-        fresh = self._heard >= self._clock() - self.settings.link_timeout
-        gyro = body_rate(self._rotations, self._gyro)
-        return Telemetry(stamp=float(np.max(self._heard)) if np.isfinite(self._heard).any() else 0.0,
-                         link_ok=bool(self._links) and bool(np.all(fresh)), motors=self._applied.copy(),
-                         battery_v=self._battery.copy(), gyro=gyro)
+        now = self._clock()
+        heard = np.array([m.heard for m in self._modules]) if self._modules else np.zeros(0)
+        fresh = heard >= now - self.settings.link_timeout
+        thrust = self._map.thrust(self._counts, self._battery)
+        quality = self.link_quality()
+        return Telemetry(stamp=float(heard.max()) if heard.size and np.isfinite(heard).any() else 0.0,
+                         link_ok=bool(self._modules) and bool(np.all(fresh)),
+                         motors=(thrust / self.module.c_f).reshape(-1), battery_v=self._battery.copy(),
+                         gyro=body_rate(self._rotations, self._gyro), link_latency_s=quality.latency_s,
+                         link_loss=quality.loss)
+
+    def disarm(self) -> None:
+        """End a flight normally: zero forces, disarmed, and each supervisor asked to disarm (confirmed when the
+        backend closes). Unlike :meth:`emergency_stop`, the modules can fly again without a reboot."""
+        self._armed = False
+        self._send_all(np.zeros_like(self._counts), armed=False)
+        self._request_disarm()
 
     def emergency_stop(self) -> None:
-        """Supervisor emergency stop and a disarmed zero command to every module, at once."""
+        """Supervisor emergency stop (and the legacy one) and a disarmed zero command to every module, at once."""
         self._armed = False
-        for link in self._links:
-            link.send_packet(CRTPPacket(wire.STOP_HEADER, bytes([wire.CMD_EMERGENCY_STOP])))
-        self._send_all(np.zeros_like(self._applied), armed=False)
-        self._applied[:] = 0.0
+        for m in self._modules:
+            for _ in range(STOP_REPEATS):
+                m.sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, bytes([wire.CMD_EMERGENCY_STOP])), True)
+                m.sender.post(CRTPPacket(wire.LEGACY_STOP_HEADER, bytes([wire.LEGACY_EMERGENCY_STOP])), True)
+        self._send_all(np.zeros_like(self._counts), armed=False)
+        self._counts[:] = 0.0
         self._stop_sent = True
 
     def close(self) -> None:
-        for link in self._links:
-            link.close()
-        self._links = []
+        if self._disarm_requested and not self._stop_sent:
+            self._confirm_disarm()
+        for m in self._modules:
+            m.sender.close()
+            m.driver.close()
+        self._modules = []
 
     def __enter__(self) -> CrazyflieBackend:
         self.connect()
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._links:
+        if self._modules and self._armed:
             self.emergency_stop()
         self.close()
 
-    # -- wire ---------------------------------------------------------------------------------------------------
+    # -- measurements -------------------------------------------------------------------------------------------
     @property
     def link_errors(self) -> list[str]:
         """Errors cflib's link drivers reported, oldest first."""
         return list(self._errors)
 
-    def _send_all(self, u: np.ndarray, armed: bool) -> None:
-        self._seq = (self._seq + 1) & 0xFF
-        for i, link in enumerate(self._links):
-            cmd = wire.MotorCommand(self._seq, armed, tuple(wire.to_counts(u[4 * i:4 * i + 4], self.u_max)))
-            link.send_packet(CRTPPacket(wire.APP_HEADER, cmd.pack()))
+    @property
+    def superseded(self) -> int:
+        """Commands a slow link replaced by a newer one before sending them (radio links)."""
+        return sum(m.sender.superseded for m in self._modules)
+
+    def module_states(self) -> list[wire.ModuleState | None]:
+        """The newest state of each module (None before the first)."""
+        return [m.state for m in self._modules]
+
+    def link_quality(self) -> LinkQuality:
+        n = len(self._modules)
+        latency, loss = np.full(n, np.nan), np.full(n, np.nan)
+        for i, m in enumerate(self._modules):
+            if m.rtts:
+                latency[i] = float(np.median([r for _, r in m.rtts]))
+            if len(m.samples) >= 2:
+                (_, seq0, rcv0), (_, seq1, rcv1) = m.samples[0], m.samples[-1]
+                sent = (seq1 - seq0) & 0xFFFF
+                if sent >= MIN_LOSS_SAMPLES:
+                    loss[i] = min(max(1.0 - ((rcv1 - rcv0) & 0xFFFF) / sent, 0.0), 1.0)
+        return LinkQuality(latency, loss)
+
+    # -- wire ---------------------------------------------------------------------------------------------------
+    def _send_all(self, fractions: np.ndarray, armed: bool) -> None:
+        self._seq = (self._seq + 1) & 0xFFFF
+        self._sent += 1
+        self._sent_at[self._seq] = self._clock()
+        for m, f in zip(self._modules, fractions, strict=False):
+            cmd = wire.MotorCommand(self._seq, armed, wire.to_counts(f))
+            m.sender.post(CRTPPacket(wire.APP_HEADER, cmd.pack()))
+
+    def _request_disarm(self) -> None:
+        self._disarm_requested = True
+        for m in self._modules:
+            m.arm_reply = None
+            m.sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, wire.arm_request(False)), True)
+
+    def _confirm_disarm(self) -> None:
+        """Repeat the disarm request until every module says it is disarmed, for at most DISARM_CONFIRM_S."""
+        deadline = self._clock() + DISARM_CONFIRM_S
+        repeat = self._clock() + ARM_RETRY_S
+        while self._clock() < deadline:
+            time.sleep(0.005)
+            self._drain()
+            if all(m.arm_reply is not None and not m.arm_reply[1] for m in self._modules):
+                return
+            if self._clock() >= repeat:
+                self._request_disarm()
+                repeat += ARM_RETRY_S
 
     def _drain(self) -> None:
         now = self._clock()
-        for i, link in enumerate(self._links):
-            while (pk := link.receive_packet(0)) is not None:
-                if pk.header != wire.APP_HEADER:
-                    continue  # console, null packets: not ours
-                try:
-                    st = wire.ModuleState.unpack(bytes(pk.data))
-                except ValueError:
-                    continue
-                self._heard[i] = now
-                # A state sent before the module saw the stop still shows thrust; the stop latches, so only
-                # states that report it say what is applied now.
-                if st.stopped or not self._stop_sent:
-                    self._applied[4 * i:4 * i + 4] = wire.from_counts(st.counts, self.u_max)
-                self._battery[i] = st.battery_v
-                self._gyro[i] = st.gyro
-                self._stopped[i] = st.stopped
+        window = self.settings.quality_window
+        for i, m in enumerate(self._modules):
+            while (pk := m.driver.receive_packet(0)) is not None:
+                data = bytes(pk.data)
+                if wire.same_port(pk.header, wire.APP_HEADER):
+                    try:
+                        st = wire.ModuleState.unpack(data)
+                    except ValueError:
+                        continue
+                    self._on_state(i, m, st, now)
+                elif wire.same_port(pk.header, wire.SUPERVISOR_HEADER):
+                    m.arm_reply = wire.arm_response(data) or m.arm_reply
+                elif wire.same_port(pk.header, wire.VERSION_HEADER):
+                    m.version = wire.version_reply(data) or m.version
+            while m.samples and m.samples[0][0] < now - window:
+                m.samples.popleft()
+            while m.rtts and m.rtts[0][0] < now - window:
+                m.rtts.popleft()
+
+    def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float) -> None:
+        previous = m.state
+        m.state, m.heard = st, now
+        # Only echoes of this backend's own commands measure the link (a module still echoes the previous
+        # session's last command until it accepts one of ours).
+        ours = self._sent >= 1 << 16 or (st.sequence - 1) & 0xFFFF < self._sent
+        if ours and (previous is None or st.sequence != previous.sequence):
+            sent = self._sent_at[st.sequence]
+            if np.isfinite(sent) and 0.0 <= now - sent < 1.0:
+                m.rtts.append((now, now - sent))
+        if ours:
+            m.samples.append((now, st.sequence, st.received))
+        # A state sent before the module saw the stop still shows thrust; the stop latches, so only states that
+        # report the lock say what is applied now.
+        if st.locked or not self._stop_sent:
+            self._counts[i] = wire.from_counts(st.counts)
+        self._battery[i] = st.battery_v
+        self._gyro[i] = st.gyro

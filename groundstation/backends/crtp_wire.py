@@ -1,19 +1,29 @@
-"""CRTP packets between the ground station and one module's motor app (the Crazyflie firmware's app channel).
+"""CRTP packets between the ground station and one module's motor app (``firmware/crazyflie_app``).
 
-Stock Crazyflie firmware has no per-motor setpoint, so each module runs a small out-of-tree app (see
-``firmware_params/README.md``) that takes four normalized rotor commands from the app channel and acknowledges
-with its state. Each CRTP packet is one header byte (``port << 4 | 0b11 << 2 | channel``, as cflib builds it) and
-at most 30 data bytes; over cflib's UDP driver one datagram carries one packet, which is what a simulated module
-on loopback speaks.
+Stock Crazyflie firmware has no per-motor setpoint, so each module runs the motor app: an out-of-tree app and
+controller that takes four normalized forces from the app channel and streams its state back. Each CRTP packet is
+one header byte (``port << 4 | 0b11 << 2 | channel``, as cflib builds it) and at most 30 data bytes; over cflib's
+UDP driver one datagram carries one packet, which is what a simulated module on loopback speaks. The C side of
+the app-channel payloads is ``firmware/crazyflie_app/src/motor_protocol.c``; both are checked against
+``firmware/crazyflie_app/test/packet_vectors.txt`` (:func:`vectors_text`), so they cannot drift.
 
-* Motor command, ground -> module, port 13 (platform) channel 2 (app): ``<BB4H`` = sequence (mod 256), flags
-  (bit 0: armed), four rotor inputs as ``round(u / u_max * 65535)`` in the module's rotor order q = 1..4.
-* State, module -> ground, same port and channel: ``<BB4H4f`` = sequence of the last command applied, flags
-  (bit 0 armed, bit 1 emergency-stopped), the four rotor inputs applied (same scale), battery voltage in V and the
-  gyro rate in rad/s in the module's body frame.
-* Emergency stop, ground -> module: the supervisor's command (port 9, channel 1, byte ``0x03``), exactly what
-  ``cf.supervisor.send_emergency_stop()`` sends; the firmware stops the motors and stays locked.
-* Link probe: the null packet ``0xFF`` (cflib's UDP scan); a module answers with its state.
+App channel (port 13, channel 2), little-endian:
+
+* Motor command, ground -> module, 12 bytes ``<BBH4H``: kind ``0x01``, flags (bit 0 armed), a 16-bit sequence,
+  four normalized forces ``round(f / f_max * 65535)`` in the module's rotor order (the platform's map from thrust
+  to normalized force is :mod:`groundstation.backends.thrust_map`).
+* Broadcast command, ground -> up to four modules in one no-ack packet: kind ``0x02``, flags, sequence, first
+  slot, module count, then per module four 12-bit forces packed in 6 bytes (``motorApp.slot`` picks a module's).
+* State, module -> ground, unprompted about every 10 ms, 30 bytes ``<BBH4HH3fHH``: kind ``0x81``, flags (armed,
+  locked, supervisor armed, fresh), the sequence of the newest command accepted (the latency probe), the forces
+  applied, battery in mV, gyro in rad/s (module frame), commands accepted and commands dropped (both wrap).
+
+Firmware services the backend uses directly (crazyflie-firmware >= 2026.04, CRTP protocol 12):
+
+* supervisor (port 9, channel 1): arm/disarm request ``[0x01, do_arm]`` answered ``[0x81, success, is_armed]``;
+  emergency stop ``[0x03]`` (latches until reboot). Firmware before 2026.04 silently drops port 9, so the stop is
+  also sent as the legacy localization packet (port 6, channel 1, ``[0x03]``), which every release honours.
+* platform version (port 13, channel 1): ``[0x00]`` answered ``[0x00, int32 protocol version]``.
 """
 
 from __future__ import annotations
@@ -23,20 +33,42 @@ from dataclasses import dataclass
 
 import numpy as np
 
-PORT_PLATFORM = 0x0D
-APP_CHANNEL = 2
+PORT_LOCALIZATION = 0x06
+LOCALIZATION_GENERIC_CHANNEL = 1
+LEGACY_EMERGENCY_STOP = 0x03
 PORT_SUPERVISOR = 0x09
 SUPERVISOR_COMMAND_CHANNEL = 1
+CMD_ARM_SYSTEM = 0x01
 CMD_EMERGENCY_STOP = 0x03
+CMD_RESPONSE = 0x80
+PORT_PLATFORM = 0x0D
+VERSION_CHANNEL = 1
+APP_CHANNEL = 2
+GET_PROTOCOL_VERSION = 0x00
 NULL_HEADER = 0xFF
 MAX_DATA = 30
 """CRTP payload limit, bytes."""
+MIN_PROTOCOL_VERSION = 12
+"""crazyflie-firmware 2026.04: the supervisor port (arming, emergency stop) the backend relies on."""
+APP_VERSION = 1
+"""The contract version this module speaks; the app serves it read-only as ``motorApp.version``."""
 
-_COMMAND = struct.Struct("<BB4H")
-_STATE = struct.Struct("<BB4H4f")
+KIND_COMMAND = 0x01
+KIND_BROADCAST = 0x02
+KIND_STATE = 0x81
 FLAG_ARMED = 0x01
-FLAG_STOPPED = 0x02
+STATE_ARMED = 0x01
+STATE_LOCKED = 0x02
+STATE_SUPERVISOR_ARMED = 0x04
+STATE_FRESH = 0x08
 FULL_SCALE = 65535
+BROADCAST_FULL_SCALE = 4095
+BROADCAST_MAX_MODULES = 4
+
+_COMMAND = struct.Struct("<BBH4H")
+_STATE = struct.Struct("<BBH4HH3fHH")
+_BROADCAST_HEADER = struct.Struct("<BBHBB")
+_VERSION_REPLY = struct.Struct("<Bi")
 
 
 def header(port: int, channel: int) -> int:
@@ -45,65 +77,197 @@ def header(port: int, channel: int) -> int:
 
 
 APP_HEADER = header(PORT_PLATFORM, APP_CHANNEL)
-STOP_HEADER = header(PORT_SUPERVISOR, SUPERVISOR_COMMAND_CHANNEL)
+VERSION_HEADER = header(PORT_PLATFORM, VERSION_CHANNEL)
+SUPERVISOR_HEADER = header(PORT_SUPERVISOR, SUPERVISOR_COMMAND_CHANNEL)
+LEGACY_STOP_HEADER = header(PORT_LOCALIZATION, LOCALIZATION_GENERIC_CHANNEL)
 
 
 def port_channel(head: int) -> tuple[int, int]:
     return (head >> 4) & 0x0F, head & 0x03
 
 
-def to_counts(u: np.ndarray, u_max: float) -> list[int]:
-    """Rotor inputs (rad^2/s^2, already bounded to [0, u_max]) as 16-bit fractions of u_max."""
-    return [int(v) for v in np.rint(np.clip(np.asarray(u, float) / u_max, 0.0, 1.0) * FULL_SCALE)]
+def same_port(a: int, b: int) -> bool:
+    """Two headers address the same port and channel (cflib's radio driver toggles bits 2-3 for safelink)."""
+    return port_channel(a) == port_channel(b)
 
 
-def from_counts(counts, u_max: float) -> np.ndarray:
-    return np.asarray(counts, float) / FULL_SCALE * u_max
+def to_counts(fractions) -> tuple[int, ...]:
+    """Normalized forces (fractions of full scale) as 16-bit counts, clipped to [0, 1]."""
+    return tuple(int(v) for v in np.rint(np.clip(np.asarray(fractions, float), 0.0, 1.0) * FULL_SCALE))
+
+
+def from_counts(counts) -> np.ndarray:
+    """16-bit counts as normalized forces."""
+    return np.asarray(counts, float) / FULL_SCALE
 
 
 @dataclass(frozen=True, eq=False)
 class MotorCommand:
     sequence: int
-    """Sender's counter, mod 256."""
+    """Sender's counter, mod 65536."""
     armed: bool
     counts: tuple[int, int, int, int]
-    """Rotor inputs q = 1..4 as fractions of u_max, 0..65535."""
+    """Normalized forces of rotors q = 1..4, 0..65535."""
 
     def pack(self) -> bytes:
-        flags = FLAG_ARMED if self.armed else 0
-        return _COMMAND.pack(self.sequence & 0xFF, flags, *self.counts)
+        return _COMMAND.pack(KIND_COMMAND, FLAG_ARMED if self.armed else 0, self.sequence & 0xFFFF, *self.counts)
 
     @classmethod
     def unpack(cls, data: bytes) -> MotorCommand:
-        if len(data) != _COMMAND.size:
-            raise ValueError(f"motor command must be {_COMMAND.size} bytes, got {len(data)}")
-        seq, flags, *counts = _COMMAND.unpack(data)
+        if len(data) != _COMMAND.size or data[0] != KIND_COMMAND:
+            raise ValueError(f"not a motor command: {bytes(data).hex()}")
+        _, flags, seq, *counts = _COMMAND.unpack(data)
         return cls(seq, bool(flags & FLAG_ARMED), tuple(counts))
 
 
 @dataclass(frozen=True, eq=False)
-class ModuleState:
+class BroadcastCommand:
+    """Commands for up to four modules (consecutive ``motorApp.slot`` values) in one packet."""
+
     sequence: int
-    """Sequence of the last command applied."""
     armed: bool
-    stopped: bool
-    """Emergency-stopped (locked until the module restarts)."""
-    counts: tuple[int, int, int, int]
-    """Rotor inputs applied, fractions of u_max, 0..65535."""
-    battery_v: float
-    """V"""
-    gyro: tuple[float, float, float]
-    """Module body frame, rad/s."""
+    first_slot: int
+    counts: tuple[tuple[int, int, int, int], ...]
+    """Per module, normalized forces 0..65535 (sent with 12 bits)."""
 
     def pack(self) -> bytes:
-        flags = (FLAG_ARMED if self.armed else 0) | (FLAG_STOPPED if self.stopped else 0)
-        return _STATE.pack(self.sequence & 0xFF, flags, *self.counts, self.battery_v, *self.gyro)
+        n = len(self.counts)
+        if not 1 <= n <= BROADCAST_MAX_MODULES or not 0 <= self.first_slot <= 256 - n:
+            raise ValueError(f"a broadcast carries 1..{BROADCAST_MAX_MODULES} modules within slots 0..255")
+        out = bytearray(_BROADCAST_HEADER.pack(KIND_BROADCAST, FLAG_ARMED if self.armed else 0,
+                                               self.sequence & 0xFFFF, self.first_slot, n))
+        for module in self.counts:
+            packed = 0
+            for q, c in enumerate(module):
+                packed |= (int(c) * BROADCAST_FULL_SCALE + FULL_SCALE // 2) // FULL_SCALE << (12 * q)
+            out += packed.to_bytes(6, "little")
+        return bytes(out)
+
+    def for_slot(self, slot: int) -> MotorCommand | None:
+        """What module ``slot`` applies (as the app decodes it), or None if the packet is not for it."""
+        k = slot - self.first_slot
+        if not 0 <= k < len(self.counts):
+            return None
+        packed = int.from_bytes(self.pack()[6 + 6 * k:12 + 6 * k], "little")
+        twelve = [(packed >> (12 * q)) & 0xFFF for q in range(4)]
+        return MotorCommand(self.sequence & 0xFFFF, self.armed,
+                            tuple((v * FULL_SCALE + BROADCAST_FULL_SCALE // 2) // BROADCAST_FULL_SCALE
+                                  for v in twelve))
+
+
+@dataclass(frozen=True, eq=False)
+class ModuleState:
+    flags: int
+    sequence: int
+    """Sequence of the newest command the module accepted."""
+    counts: tuple[int, int, int, int]
+    """Normalized forces applied, 0..65535."""
+    battery_mv: int
+    gyro: tuple[float, float, float]
+    """Module body frame, rad/s."""
+    received: int
+    """Commands accepted, mod 65536."""
+    dropped: int
+    """Commands not applied (older than the newest, malformed, lost to a full queue), mod 65536."""
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.flags & STATE_ARMED)
+
+    @property
+    def locked(self) -> bool:
+        """The supervisor is locked (emergency stop or commander watchdog): the module must be rebooted."""
+        return bool(self.flags & STATE_LOCKED)
+
+    @property
+    def supervisor_armed(self) -> bool:
+        return bool(self.flags & STATE_SUPERVISOR_ARMED)
+
+    @property
+    def fresh(self) -> bool:
+        return bool(self.flags & STATE_FRESH)
+
+    @property
+    def battery_v(self) -> float:
+        return self.battery_mv / 1000.0
+
+    def pack(self) -> bytes:
+        return _STATE.pack(KIND_STATE, self.flags, self.sequence & 0xFFFF, *self.counts, self.battery_mv,
+                           *self.gyro, self.received & 0xFFFF, self.dropped & 0xFFFF)
 
     @classmethod
     def unpack(cls, data: bytes) -> ModuleState:
-        if len(data) != _STATE.size:
-            raise ValueError(f"module state must be {_STATE.size} bytes, got {len(data)}")
-        seq, flags, c0, c1, c2, c3, battery, gx, gy, gz = _STATE.unpack(data)
-        return cls(seq, bool(flags & FLAG_ARMED), bool(flags & FLAG_STOPPED), (c0, c1, c2, c3), battery,
-                   (gx, gy, gz))
+        if len(data) != _STATE.size or data[0] != KIND_STATE:
+            raise ValueError(f"not a module state: {bytes(data).hex()}")
+        _, flags, seq, c0, c1, c2, c3, mv, gx, gy, gz, received, dropped = _STATE.unpack(data)
+        return cls(flags, seq, (c0, c1, c2, c3), mv, (gx, gy, gz), received, dropped)
 
+
+def arm_request(do_arm: bool) -> bytes:
+    """Supervisor arming (or disarming) request, as ``cf.supervisor.send_arming_request``."""
+    return bytes([CMD_ARM_SYSTEM, 1 if do_arm else 0])
+
+
+def arm_response(data: bytes) -> tuple[bool, bool] | None:
+    """(granted, armed) from a supervisor reply, or None if ``data`` is not the answer to an arming request."""
+    if len(data) >= 3 and data[0] == CMD_RESPONSE | CMD_ARM_SYSTEM:
+        return bool(data[1]), bool(data[2])
+    return None
+
+
+def version_reply(data: bytes) -> int | None:
+    """The CRTP protocol version from a platform version reply, or None."""
+    if len(data) >= _VERSION_REPLY.size and data[0] == GET_PROTOCOL_VERSION:
+        return _VERSION_REPLY.unpack_from(data)[1]
+    return None
+
+
+# -- the vectors shared with the C app ----------------------------------------------------------------------------
+def _command_vectors() -> list[tuple[int, bytes, str, MotorCommand | None]]:
+    """(slot, payload, status the app must report, the command it must decode)."""
+    out = []
+    for cmd in (MotorCommand(0, False, (0, 0, 0, 0)), MotorCommand(1, True, (0, 1, 32768, 65535)),
+                MotorCommand(0xBEEF, True, (12345, 54321, 1000, 65000)), MotorCommand(65535, False, (1, 2, 3, 4))):
+        out.append((0, cmd.pack(), "OK", cmd))
+    bc = BroadcastCommand(0x1234, True, 2, ((0, 65535, 32768, 16), (65535, 0, 0, 65535), (100, 200, 300, 400)))
+    for slot in (2, 3, 4):
+        out.append((slot, bc.pack(), "OK", bc.for_slot(slot)))
+    out.append((1, bc.pack(), "NOT_FOR_US", None))
+    out.append((5, bc.pack(), "NOT_FOR_US", None))
+    good = MotorCommand(7, True, (1, 2, 3, 4)).pack()
+    out.append((0, good[:-1], "BAD_LENGTH", None))
+    out.append((0, good + b"\x00", "BAD_LENGTH", None))
+    out.append((0, bytes([0x42]) + good[1:], "BAD_KIND", None))
+    out.append((0, bytes([KIND_STATE]) + good[1:], "BAD_KIND", None))
+    out.append((0, bc.pack()[:-1], "BAD_LENGTH", None))
+    return out
+
+
+STATE_VECTORS = (
+    ModuleState(0, 0, (0, 0, 0, 0), 0, (0.0, 0.0, 0.0), 0, 0),
+    ModuleState(STATE_ARMED | STATE_SUPERVISOR_ARMED | STATE_FRESH, 258, (1, 2, 65535, 32768), 3987,
+                (0.5, -0.25, 1.0), 7, 43981),
+    ModuleState(STATE_LOCKED, 65535, (65535, 65535, 65535, 65535), 16800, (3.1415927, -34.9, 1e-3), 65535, 1),
+)
+
+
+def vectors_text() -> str:
+    """The vector file ``firmware/crazyflie_app/test/packet_vectors.txt``: encoded here, decoded by the C app."""
+    lines = ["# Packet vectors shared by groundstation/backends/crtp_wire.py (which writes them: vectors_text())",
+             "# and firmware/crazyflie_app/test/vector_check.c (which decodes the commands and re-encodes the",
+             "# states). Regenerate with: python -m groundstation.backends.crtp_wire > <this file>"]
+    for slot, payload, status, cmd in _command_vectors():
+        fields = f"command slot={slot} status={status}"
+        if cmd is not None:
+            fields += f" seq={cmd.sequence} armed={int(cmd.armed)} counts={','.join(map(str, cmd.counts))}"
+        lines.append(f"{fields} hex={payload.hex()}")
+    for st in STATE_VECTORS:
+        gyro = ",".join(repr(float(np.float32(g))) for g in st.gyro)  # exactly the float32 sent
+        lines.append(f"state flags={st.flags} seq={st.sequence} counts={','.join(map(str, st.counts))} "
+                     f"battery_mv={st.battery_mv} gyro={gyro} received={st.received} dropped={st.dropped} "
+                     f"hex={st.pack().hex()}")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(vectors_text(), end="")

@@ -15,6 +15,7 @@ class FakeBackend:
         self.commands: list[np.ndarray] = []
         """Every command as applied (after arming and bounds), in order."""
         self.stops = 0
+        self.disarms = 0
         self.link_ok = True
         self._connected = False
         self._armed = False
@@ -36,6 +37,11 @@ class FakeBackend:
     def telemetry(self) -> Telemetry:
         return Telemetry(stamp=float(len(self.commands)), link_ok=self._connected and self.link_ok,
                          motors=self._u.copy())
+
+    def disarm(self) -> None:
+        self._armed = False
+        self._u = np.zeros_like(self._u)
+        self.disarms += 1
 
     def emergency_stop(self) -> None:
         self._armed = False

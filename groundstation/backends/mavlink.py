@@ -24,16 +24,16 @@ from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
 from groundstation.backends.base import PreflightReport, Telemetry, applied_command, body_rate
-from groundstation.errors import GroundstationError
+from groundstation.errors import ArmingError, BackendError
 
 mav = mavutil.mavlink
 
 
-class MavlinkLinkError(GroundstationError):
+class MavlinkLinkError(BackendError):
     """A module's MAVLink connection could not be opened."""
 
 
-class MavlinkArmError(GroundstationError):
+class MavlinkArmError(ArmingError):
     """A module did not switch to offboard or did not arm."""
 
 
@@ -80,6 +80,8 @@ class _Module:
         self.acks: dict[int, int] = {}
         """Last COMMAND_ACK result per command id."""
         self.stop_acked = False
+        self.arm_wanted = False
+        """The last arm/disarm command asked to arm (its ACK then means armed)."""
 
 
 class MavlinkBackend:
@@ -167,6 +169,7 @@ class MavlinkBackend:
                           mw.PX4_MAIN_MODE_OFFBOARD)
         self._await(mav.MAV_CMD_DO_SET_MODE, "switch to offboard")
         for m in self._modules:
+            m.arm_wanted = True
             self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
         self._await(mav.MAV_CMD_COMPONENT_ARM_DISARM, "arm")
         self._armed = True
@@ -188,12 +191,21 @@ class MavlinkBackend:
                          link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
                          battery_v=self._battery.copy(), gyro=gyro)
 
+    def disarm(self) -> None:
+        """End a flight normally: zero controls and a plain disarm (no termination: the modules can fly again)."""
+        self._armed = False
+        self._send_controls(np.zeros_like(self._applied))
+        for m in self._modules:
+            m.arm_wanted = False
+            self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
+
     def emergency_stop(self) -> None:
         """Force-disarm and terminate every module, and command zero, at once (no waiting for answers)."""
         self._armed = False
         self._stop_sent = True
         for m in self._modules:
             m.stop_acked = False
+            m.arm_wanted = False
             self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, mw.FORCE_DISARM)
             self._command(m, mav.MAV_CMD_DO_FLIGHTTERMINATION, 1.0)
         self._send_controls(np.zeros_like(self._applied))
@@ -209,7 +221,7 @@ class MavlinkBackend:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._modules:
+        if self._modules and self._armed:
             self.emergency_stop()
         self.close()
 
@@ -278,7 +290,7 @@ class MavlinkBackend:
                 elif kind == "COMMAND_ACK":
                     m.acks[msg.command] = msg.result
                     if msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-                        m.armed = msg.result == mav.MAV_RESULT_ACCEPTED and not self._stop_sent
+                        m.armed = msg.result == mav.MAV_RESULT_ACCEPTED and m.arm_wanted and not self._stop_sent
                         m.armed_at = now if m.armed else m.armed_at
                         m.stop_acked = m.stop_acked or self._stop_sent
                 elif kind == "ATTITUDE":

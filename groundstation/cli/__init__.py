@@ -2,7 +2,8 @@
 
 Every command is a function a test can call through click's runner. Errors raised on purpose by the package
 (:class:`~groundstation.errors.GroundstationError`) and click's own usage errors become one line on stderr and a
-non-zero exit code: 2 for bad input, 1 for a result that failed (e.g. an infeasible design), 130 on Ctrl-C.
+non-zero exit code: 2 for bad input, 1 for a result that failed (e.g. an infeasible design, modules that cannot
+be reached or refuse to arm), 130 on Ctrl-C.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ from groundstation.cli.fly_cmd import fly_command, log_group, mocap_bridge_comma
 from groundstation.cli.optimize_cmd import optimize_command
 from groundstation.cli.params_cmd import params_command
 from groundstation.cli.simulate_cmd import simulate_command
-from groundstation.errors import GroundstationError
+from groundstation.errors import BackendError, GroundstationError
 
+EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
@@ -61,6 +63,9 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         click.echo("groundstation: interrupted", err=True)
         sys.exit(EXIT_INTERRUPTED)
+    except BackendError as exc:
+        click.echo(f"groundstation: error: {exc}", err=True)
+        sys.exit(EXIT_FAILED)
     except GroundstationError as exc:
         click.echo(f"groundstation: error: {exc}", err=True)
         sys.exit(EXIT_BAD_INPUT)

@@ -102,7 +102,8 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         Console().print(table)
     click.echo(f"log: {result.log_path}", err=True)
     if result.phase != "done":
-        click.echo(f"groundstation: the flight ended in {result.phase}: {result.reason}", err=True)
+        what = "did not start" if result.phase == "aborted" else f"ended in {result.phase}"
+        click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)
         return EXIT_EMERGENCY
     return 0
 
@@ -162,12 +163,16 @@ def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key
               help="Zenoh endpoint the virtual mocap listens on.")
 @click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
 @click.option("--physics-hz", type=float, default=240.0, show_default=True)
+@click.option("--platform", type=click.Choice(["cf2", "cf21bl", "bolt"]), default="bolt", show_default=True,
+              help="crtp: the Crazyflie platform simulated (bolt and cf21bl must be asked to arm; cf2 arms itself).")
+@click.option("--stock-firmware", is_flag=True,
+              help="crtp: modules without the motor app (what the ground station must refuse).")
 @click.option("--params", "param_file", type=click.Path(dir_okay=False), default=None,
               help="Start the modules with these firmware parameters set (a firmware_params/ file: modules "
                    "already configured); otherwise they have stock values.")
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
 def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, body: str, physics_hz: float,
-                     param_file: str | None, duration: float | None) -> int:
+                     platform: str, stock_firmware: bool, param_file: str | None, duration: float | None) -> int:
     """Simulate an assembly's modules behind their wire protocol on loopback UDP, with its pose on Zenoh.
 
     Fly it with a config whose backend is crazyflie (modules udp://127.0.0.1:PORT, PORT+1, ...) or mavlink
@@ -189,7 +194,8 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     asm, _ = load_assembly(assembly)
     params = tuple(load_param_file(param_file).items()) if param_file else ()
     peer = peer_class(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
-                                      physics_hz=physics_hz, params=params))
+                                      physics_hz=physics_hz, params=params, platform=platform,
+                                      motor_app=not stock_firmware))
     try:
         peer.open()
     except (OSError, ValueError) as exc:  # port taken; a parameter these modules do not have

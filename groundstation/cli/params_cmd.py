@@ -47,8 +47,9 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
             table.add_column(col)
         for c in checks:
             has = f"{c.actual:g}" if c.actual is not None else c.note
+            done = ", ".join(w for w, flag in (("written", c.written), ("stored", c.stored)) if flag)
             table.add_row(str(c.module), c.link, c.name, f"{c.expected:g}", has,
-                          ("ok" if c.ok else "WRONG") + (" (written)" if c.written else ""))
+                          ("ok" if c.ok else "WRONG") + (f" ({done})" if done else ""))
         Console(width=140).print(table)
     bad = issues(checks)
     for line in bad:

@@ -2,7 +2,11 @@
 
 This opens a full cflib connection (table-of-contents download, all parameter values), which the flight's own
 link (raw link drivers, :mod:`groundstation.backends.crazyflie`) avoids; so it runs before the flight, never in
-it. Every wait is bounded by ``timeout``.
+it. Every wait is bounded by ``timeout``; a connection that does not come up is tried ``ATTEMPTS`` times (over a
+lossy link cflib's TOC download can stall). Written persistent parameters (``supervisor.tmblChckEn``) are also
+stored in the module's EEPROM: an emergency stop locks a module until it is rebooted, and a reboot would bring
+back the stock value. Read-only parameters (``motorApp.version``) are never written: a wrong one means the wrong
+firmware is flashed.
 """
 
 from __future__ import annotations
@@ -11,9 +15,12 @@ import threading
 from pathlib import Path
 
 from cflib.crazyflie import Crazyflie
+from cflib.crazyflie.param import ParamTocElement
 
 from groundstation.backends.crazyflie import ensure_drivers
 from groundstation.firmware.params import ParamCheck, matches
+
+ATTEMPTS = 3
 
 
 class _Values:
@@ -41,26 +48,47 @@ class _Values:
             return None
 
 
-def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool = False,
-                    timeout: float = 5.0, toc_cache: Path | None = None) -> list[ParamCheck]:
-    """Compare module ``module``'s parameters at ``uri`` with ``wanted``; with ``apply``, write the ones that
-    differ and read them back. ``toc_cache`` keeps downloaded tables of contents between runs (a directory)."""
-    ensure_drivers()
-    cache = None
-    if toc_cache is not None:
-        toc_cache.mkdir(parents=True, exist_ok=True)
-        cache = str(toc_cache)
+def _connect(uri: str, timeout: float, cache: str | None) -> tuple[Crazyflie | None, str]:
+    """A fully connected ``Crazyflie`` (TOC and values downloaded), or None and why not."""
     cf = Crazyflie(rw_cache=cache)
     ready = threading.Event()
     failure: list[str] = []
     cf.fully_connected.add_callback(lambda _uri: ready.set())
     cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg).splitlines()[0]), ready.set()))
-    values = _Values()
     cf.open_link(uri)
+    if ready.wait(timeout) and not failure:
+        return cf, ""
+    cf.close_link()
+    return None, failure[0] if failure else f"no answer within {timeout:g} s"
+
+
+def _store(cf: Crazyflie, name: str, timeout: float) -> bool:
+    """Store a persistent parameter's current value in the module's EEPROM; True once the module confirms."""
+    done = threading.Event()
+    result: list[bool] = []
+    cf.param.persistent_store(name, lambda _name, ok: (result.append(ok), done.set()))
+    return done.wait(timeout) and result == [True]
+
+
+def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool = False,
+                    timeout: float = 5.0, toc_cache: Path | None = None) -> list[ParamCheck]:
+    """Compare module ``module``'s parameters at ``uri`` with ``wanted``; with ``apply``, write the ones that
+    differ (storing persistent ones) and read them back. ``toc_cache`` keeps downloaded tables of contents
+    between runs (a directory)."""
+    ensure_drivers()
+    cache = None
+    if toc_cache is not None:
+        toc_cache.mkdir(parents=True, exist_ok=True)
+        cache = str(toc_cache)
+    cf, why = None, ""
+    for _ in range(ATTEMPTS):
+        cf, why = _connect(uri, timeout, cache)
+        if cf is not None:
+            break
+    if cf is None:
+        return [ParamCheck(module, uri, n, v, None, note=why, unreachable=True) for n, v in wanted.items()]
+    values = _Values()
     try:
-        if not ready.wait(timeout) or failure:
-            why = failure[0] if failure else f"no answer within {timeout:g} s"
-            return [ParamCheck(module, uri, n, v, None, note=why) for n, v in wanted.items()]
         checks = []
         for name, expected in wanted.items():
             element = cf.param.toc.get_element_by_complete_name(name)
@@ -69,17 +97,25 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
                 continue
             group, short = name.split(".")
             actual = float(cf.param.values[group][short])
-            written = False
-            if apply and not matches(actual, expected):
-                cf.param.add_update_callback(group=group, name=short, cb=values.on_update)
-                seen = values.count(name)
-                cf.param.set_value(name, expected)  # the module echoes the value it applied
-                echoed = values.wait_update(name, seen, timeout)
-                cf.param.request_param_update(name)  # and a fresh read confirms it
-                read = values.wait_update(name, seen + 1, timeout) if echoed is not None else None
-                actual, written = (float(read) if read is not None else None), True
-            checks.append(ParamCheck(module, uri, name, expected, actual, written=written,
-                                     note="" if actual is not None else f"no answer within {timeout:g} s"))
+            if not apply or matches(actual, expected):
+                checks.append(ParamCheck(module, uri, name, expected, actual))
+                continue
+            if element.access == ParamTocElement.RO_ACCESS:
+                checks.append(ParamCheck(module, uri, name, expected, actual,
+                                         note="read-only: flash the firmware that has it right"))
+                continue
+            cf.param.add_update_callback(group=group, name=short, cb=values.on_update)
+            seen = values.count(name)
+            cf.param.set_value(name, expected)  # the module echoes the value it applied
+            echoed = values.wait_update(name, seen, timeout)
+            cf.param.request_param_update(name)  # and a fresh read confirms it
+            read = values.wait_update(name, seen + 1, timeout) if echoed is not None else None
+            actual = float(read) if read is not None else None
+            stored = actual is not None and element.is_persistent() and _store(cf, name, timeout)
+            note = "" if actual is not None else f"no answer within {timeout:g} s"
+            if actual is not None and element.is_persistent() and not stored:
+                note = "written but not stored: a reboot brings the old value back"
+            checks.append(ParamCheck(module, uri, name, expected, actual, written=True, stored=stored, note=note))
         return checks
     finally:
         cf.close_link()

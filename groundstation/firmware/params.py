@@ -51,8 +51,12 @@ class ParamCheck:
     """Value read back from the module; None if the module does not have the parameter or did not answer."""
     written: bool = False
     """``--apply`` wrote it in this run."""
+    stored: bool = False
+    """``--apply`` stored it in the module's EEPROM (persistent parameters: it survives a reboot)."""
     note: str = ""
-    """Why ``actual`` is None (e.g. the module did not answer)."""
+    """Why ``actual`` is None or the parameter could not be set (e.g. read-only)."""
+    unreachable: bool = False
+    """The module itself did not answer (every parameter of it carries the same note)."""
 
     @property
     def ok(self) -> bool:
@@ -60,11 +64,17 @@ class ParamCheck:
 
 
 def issues(checks: list[ParamCheck]) -> list[str]:
-    """One line per parameter that is not as required (empty: all good)."""
+    """One line per parameter that is not as required, one per module that does not answer (empty: all good)."""
     out = []
+    silent: set[int] = set()
     for c in checks:
-        if c.ok:
+        if c.ok or c.module in silent:
+            continue
+        if c.unreachable:
+            silent.add(c.module)
+            out.append(f"module {c.module} ({c.link}) does not answer: {c.note}")
             continue
         got = c.note or "unknown" if c.actual is None else f"{c.actual:g}"
-        out.append(f"module {c.module} ({c.link}): {c.name} is {got}, must be {c.expected:g}")
+        extra = f" ({c.note})" if c.actual is not None and c.note else ""
+        out.append(f"module {c.module} ({c.link}): {c.name} is {got}, must be {c.expected:g}{extra}")
     return out

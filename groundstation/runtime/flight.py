@@ -3,11 +3,15 @@
 States and transitions (each logged as an event)::
 
     preflight -> takeoff -> settle -> track -> hold -> landing -> done
-         any airborne state --(operator land, mocap stale with policy "land")--> landing
-         any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale with "stop")--> emergency
+    preflight --(a module refuses to arm)--> aborted
+         any airborne state --(operator land, mocap stale or link degraded with policy "land")--> landing
+         any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale or link degraded with
+                      "stop")--> emergency
 
-``landing`` descends from where the reference is to below the ground and ends in ``done`` with the motors off;
-``emergency`` commands the motors off in the same period it is entered. Every failure path ends in one of the two.
+``landing`` descends from where the reference is to below the ground and ends in ``done``: motors off and the
+modules disarmed (they can fly again). ``emergency`` sends the backend's emergency stop in the same period it is
+entered (real modules latch it until rebooted). ``aborted``: nothing spun; the modules are disarmed. Every failure
+path ends in one of these.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
+from groundstation.errors import ArmingError
 from groundstation.runtime.loop import (
     Clock,
     LoopActivity,
@@ -70,6 +75,12 @@ class FailsafePolicy:
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
     geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
     """Box the measured position must stay in, world frame, m."""
+    max_link_latency_s: float = 0.015
+    """A module whose command round trip exceeds this (median over the backend's window) degrades the link, s;
+    20 ms of extra latency already upsets the two-module assembly's attitude loop at take-off."""
+    max_link_loss: float = 0.1
+    """A module that does not accept this fraction of commands (lost or reordered) degrades the link."""
+    on_link_degraded: Literal["land", "stop"] = "land"
 
 
 @dataclass
@@ -153,7 +164,7 @@ class Flight:
 
     def _set_phase(self, t: float, phase: str, why: str = "") -> None:
         if phase != self.phase:
-            self._event(t, "warning" if phase == "emergency" else "info",
+            self._event(t, "warning" if phase in ("emergency", "aborted") else "info",
                         f"{self.phase} -> {phase}" + (f": {why}" if why else ""))
             self.phase = phase
 
@@ -173,7 +184,7 @@ class Flight:
 
     # -- one period -----------------------------------------------------------------------------------------------
     def step(self, k: int, t: float) -> bool:
-        if self.phase in ("done", "emergency"):
+        if self.phase in ("done", "emergency", "aborted"):
             return False
         if self.before_period is not None:
             self.before_period(t)
@@ -187,6 +198,13 @@ class Flight:
         if not telemetry.link_ok:
             self._emergency(t, "backend link lost")
             return False
+        degraded = self._link_degraded(telemetry)
+        if degraded:
+            if self.policy.on_link_degraded == "stop":
+                self._emergency(t, degraded)
+                return False
+            if self.phase != "landing" and self.phase in AIRBORNE and state is not None:
+                self._begin_landing(t, state.position, degraded)
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
             if self.policy.on_mocap_stale == "stop" or state is None:
@@ -231,6 +249,18 @@ class Flight:
         self._record(t, state, sp, out, u, age, telemetry)
         return True
 
+    def _link_degraded(self, telemetry) -> str:
+        """Why the modules' links are too slow or lossy to fly on ("" if they are fine or not measured)."""
+        p = self.policy
+        lat, loss = telemetry.link_latency_s, telemetry.link_loss
+        if lat.size and np.nanmax(lat, initial=0.0) > p.max_link_latency_s:
+            i = int(np.nanargmax(lat))
+            return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > {p.max_link_latency_s * 1e3:g} ms"
+        if loss.size and np.nanmax(loss, initial=0.0) > p.max_link_loss:
+            i = int(np.nanargmax(loss))
+            return f"link degraded: module {i} lost {loss[i]:.0%} of commands > {p.max_link_loss:.0%}"
+        return ""
+
     def _log_motors_off(self, t: float) -> None:
         if self.log is not None:
             # "motors" is what was commanded (zero, with the stop); "applied" what the backend reports now, which
@@ -241,7 +271,7 @@ class Flight:
                                          "motors_off": True}, self._t_wall0 + t)
 
     def _finish(self, t: float) -> None:
-        self.backend.emergency_stop()  # landed: motors off
+        self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
         self._last_u = np.zeros_like(self._last_u)
         self._log_motors_off(t)
         self._set_phase(t, "done", "landed")
@@ -311,10 +341,16 @@ class Flight:
                 activity.end(time_left - (time.perf_counter() - t0))
 
         try:
-            # Arming is a round trip with some backends (MAVLink waits for every module's answer): done before
-            # the first period so that wait is not a late period. So is reading what queued meanwhile (a second
-            # of MAVLink telemetry, 64 mocap samples): the first period then parses one period's worth.
-            self.backend.arm()
+            # Arming is a round trip with the hardware backends (every module must confirm): done before the
+            # first period so that wait is not a late period. So is reading what queued meanwhile (a second of
+            # MAVLink telemetry, 64 mocap samples): the first period then parses one period's worth.
+            try:
+                self.backend.arm()
+            except ArmingError as exc:
+                self.backend.disarm()
+                self.reason = str(exc)
+                self._set_phase(0.0, "aborted", f"arming failed: {exc}")
+                return self._stats
             self.backend.telemetry()
             self.pose.state()
             with collector_paused():
@@ -325,7 +361,7 @@ class Flight:
         finally:
             if activity is not None:
                 activity.end()  # no more periods: background threads may work freely
-            if self.phase not in ("done", "emergency"):
+            if self.phase not in ("done", "emergency", "aborted"):
                 self._emergency(self.rec.t[-1] if self.rec.t else 0.0, "loop ended")
         if self.log is not None:
             self.log.record("/loop/timing", stats.summary(), self._t_wall0 + (self.rec.t[-1] if self.rec.t else 0))

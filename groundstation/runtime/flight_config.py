@@ -41,6 +41,9 @@ class BackendSection:
     """mavlink: the modules' PWM_MAIN_MIN (zero thrust), us."""
     pwm_max: int = Field(2000, gt=0)
     """mavlink: the modules' PWM_MAIN_MAX (full thrust), us."""
+    radio_capacity_hz: float = Field(450.0, gt=0)
+    """crazyflie: packets a second one Crazyradio carries (Bitcraze: about 450-500 round trips); every module
+    takes one per control period, so modules on one dongle x ``rate_hz`` must stay below it."""
     firmware_params: str | None = None
     """crazyflie, mavlink: a parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/
     module_params.toml``; relative to this config) that preflight checks on every module before arming."""
@@ -107,6 +110,11 @@ class FailsafeSection:
     max_tilt_deg: float = Field(75.0, gt=0, le=180)
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
     geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
+    max_link_latency_s: float = Field(0.015, gt=0)
+    """crazyflie: a module's command round trip beyond this (median over 0.5 s) is a degraded link, s."""
+    max_link_loss: float = Field(0.1, gt=0, le=1)
+    """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded."""
+    on_link_degraded: Literal["land", "stop"] = "land"
 
 
 @dataclass(frozen=True, config=_STRICT)

@@ -8,7 +8,8 @@ Zenoh: a mocap bridge, or ``groundstation sim-peer``, which simulates the module
 in another process.
 
 Operator: the first Ctrl-C (or SIGTERM) lands, a second one stops the motors at once. Every exit path ends with
-the motors off and the MCAP file finalized.
+the motors off and the MCAP file finalized: a normal landing disarms the modules (they can fly again at once),
+every other path sends the emergency stop.
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from groundstation import __version__
 from groundstation.assembly.assembly_file import assembly_record, load_assembly
-from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieLinkError, CrazyflieSettings
-from groundstation.backends.mavlink import MavlinkBackend, MavlinkLinkError, MavlinkSettings
+from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
+from groundstation.backends.mavlink import MavlinkBackend, MavlinkSettings
+from groundstation.backends.radio_budget import radio_budget_issues
 from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
 from groundstation.control.trajectory import FlightPlan, make_track
@@ -69,7 +71,7 @@ class Faults:
 class FlyResult:
     log_path: Path
     phase: str
-    """Final state: ``done`` (landed) or ``emergency`` (motors stopped)."""
+    """Final state: ``done`` (landed, disarmed), ``emergency`` (motors stopped) or ``aborted`` (never armed)."""
     reason: str
     metrics: dict
     events: list = field(default_factory=list)
@@ -115,11 +117,19 @@ def _firmware_param_issues(cfg: FlightConfig, base: Path, src: str, cache_dir: P
     return [f"firmware parameter: {b} (fix with: groundstation params {src} --apply)" for b in bad]
 
 
-def _hardware_backend(cfg: FlightConfig, assembly) -> CrazyflieBackend | MavlinkBackend:
+def _hardware_backend(cfg: FlightConfig, assembly, src: str) -> CrazyflieBackend | MavlinkBackend:
     b = cfg.backend
     if b.kind == "crazyflie":
-        return CrazyflieBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
-                                CrazyflieSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v))
+        if assembly.params.motor_command is None:
+            raise ConfigError("the assembly's module_params has no motor_command (the thrust map of the modules' "
+                              "platform, see configs/modules/paper_table2.toml)", path=src, key="assembly")
+        budget = radio_budget_issues(b.modules, cfg.rate_hz, b.radio_capacity_hz)
+        if budget:
+            raise ConfigError("; ".join(budget), path=src, key="backend.modules")
+        f = cfg.failsafe
+        return CrazyflieBackend(b.modules, assembly.params, assembly.module_rotations,
+                                CrazyflieSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
+                                                  max_latency=f.max_link_latency_s, max_loss=f.max_link_loss))
     return MavlinkBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
                           MavlinkSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
                                           pwm_min=b.pwm_min, pwm_max=b.pwm_max))
@@ -171,6 +181,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
 
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     activity = activity or LoopActivity()
+    ended_cleanly = [False]
     with ExitStack() as stack:
         m = cfg.mocap
         if cfg.backend.kind == "sim":
@@ -184,14 +195,13 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             theirs = [] if m.listen else [m.endpoint]
             world = None
             # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
+            backend = _hardware_backend(cfg, assembly, src)
             param_issues = _firmware_param_issues(cfg, base, src, log_file.parent)
-            backend = _hardware_backend(cfg, assembly)
-            try:
-                backend.connect()
-            except (CrazyflieLinkError, MavlinkLinkError) as exc:
-                raise ConfigError(str(exc), path=src, key="backend.modules") from None
+            backend.connect()
             stack.callback(backend.close)
-            stack.callback(backend.emergency_stop)  # runs first on the way out: motors off whatever happened
+            # Runs first on the way out: a flight that landed (or never armed) is disarmed already; anything else
+            # (an exception, Ctrl-C in preflight) gets the emergency stop.
+            stack.callback(lambda: None if ended_cleanly[0] else backend.emergency_stop())
         gs_session = open_session(listen=ours, connect=theirs)
         stack.callback(gs_session.close)
         sub = PoseSubscriber(gs_session, key, SubscriberSettings(max_speed=m.max_speed))
@@ -250,6 +260,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             sys.setswitchinterval(switch)
             if restore is not None:
                 restore()
+        ended_cleanly[0] = flight.phase in ("done", "aborted")
         record = record_of(flight, time.perf_counter() - wall0, plan.duration, stats)
         log.record("/flight/summary", {k: v for k, v in record.metrics.items() if k != "loop"}, time.time())
     if log.error is not None:

@@ -52,7 +52,7 @@ def held(backend_class):
 
 
 def make_crazyflie():
-    return held(CrazyflieBackend)([f"udp://127.0.0.1:{19874 + i}" for i in range(ASM.n)], U_MAX,
+    return held(CrazyflieBackend)([f"udp://127.0.0.1:{19874 + i}" for i in range(ASM.n)], ASM.params,
                                   ASM.module_rotations)
 
 
@@ -122,6 +122,18 @@ def test_emergency_stop_zeroes_at_once_and_disarms(backend):
     assert backend.telemetry().motors.max() == 0.0  # immediately, not after a lag
     backend.send(np.full(8, 0.5 * U_MAX))
     assert applied(backend).max() == 0.0  # disarmed
+
+
+def test_disarm_ends_normally_and_the_modules_fly_again(backend):
+    backend.arm()
+    backend.send(np.full(8, 0.5 * U_MAX))
+    assert applied(backend).min() > 0.45 * U_MAX
+    backend.disarm()
+    backend.send(np.full(8, 0.5 * U_MAX))
+    assert applied(backend).max() < 1e-4 * U_MAX  # disarmed (simulated rotors spin down through their lag)
+    backend.arm()  # no reboot: a normal end does not latch like the emergency stop
+    backend.send(np.full(8, 0.5 * U_MAX))
+    np.testing.assert_allclose(applied(backend), 0.5 * U_MAX, rtol=1e-3)
 
 
 def test_wrong_command_size_is_an_error(backend):

@@ -1,6 +1,6 @@
-"""The Crazyflie backend through cflib's real UDP link driver, against simulated modules speaking CRTP."""
+"""The Crazyflie backend through cflib's real UDP link driver, against simulated modules that follow the firmware
+(supervisor arming, emergency-stop lock, the motor app's state stream and gate)."""
 
-import struct
 import time
 
 import numpy as np
@@ -9,6 +9,7 @@ from cflib.crtp.crtpstack import CRTPPacket
 
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieLinkError, CrazyflieSettings
+from groundstation.errors import ArmingError
 from sim.crazyflie_peer import SimulatedCrazyflies
 from tests import peers
 from tests.peers import ASM, U_MAX, hold, stop_peer
@@ -22,37 +23,73 @@ def uris(port: int) -> list[str]:
     return [f"udp://127.0.0.1:{port + i}" for i in range(ASM.n)]
 
 
-def test_wire_format_matches_cflib_and_round_trips():
+def backend(port: int, **settings) -> CrazyflieBackend:
+    return CrazyflieBackend(uris(port), ASM.params, ASM.module_rotations, CrazyflieSettings(**settings))
+
+
+def test_wire_headers_match_cflib():
     pk = CRTPPacket()
-    pk.set_header(wire.PORT_PLATFORM, wire.APP_CHANNEL)
-    assert pk.header == wire.APP_HEADER
-    pk.set_header(wire.PORT_SUPERVISOR, wire.SUPERVISOR_COMMAND_CHANNEL)
-    assert pk.header == wire.STOP_HEADER
-    assert wire.port_channel(wire.APP_HEADER) == (13, 2)
-    cmd = wire.MotorCommand(300, True, (0, 1, 32768, 65535))
-    raw = cmd.pack()
-    assert len(raw) <= wire.MAX_DATA and raw == struct.pack("<BB4H", 300 % 256, 1, 0, 1, 32768, 65535)
-    back = wire.MotorCommand.unpack(raw)
-    assert (back.sequence, back.armed, back.counts) == (44, True, (0, 1, 32768, 65535))
-    st = wire.ModuleState(7, False, True, (1, 2, 3, 4), 3.9, (0.5, -0.25, 1.0))
-    raw = st.pack()
-    assert len(raw) <= wire.MAX_DATA
-    back = wire.ModuleState.unpack(raw)
-    assert (back.sequence, back.armed, back.stopped, back.counts) == (7, False, True, (1, 2, 3, 4))
-    assert back.battery_v == pytest.approx(3.9, rel=1e-6) and back.gyro == (0.5, -0.25, 1.0)
-    with pytest.raises(ValueError):
-        wire.MotorCommand.unpack(raw)
-    np.testing.assert_allclose(wire.from_counts(wire.to_counts([0, U_MAX / 3, U_MAX, 2 * U_MAX], U_MAX), U_MAX),
-                               [0, U_MAX / 3, U_MAX, U_MAX], atol=U_MAX / 65535)
+    for (port, channel), head in {(13, 2): wire.APP_HEADER, (13, 1): wire.VERSION_HEADER,
+                                  (9, 1): wire.SUPERVISOR_HEADER, (6, 1): wire.LEGACY_STOP_HEADER}.items():
+        pk.set_header(port, channel)
+        assert pk.header == head and wire.port_channel(head) == (port, channel)
+    assert wire.same_port(wire.APP_HEADER & ~0x0C, wire.APP_HEADER)  # safelink bits do not matter
 
 
 def test_commands_reach_the_modules_and_the_state_comes_back():
     peer, th = start_peer(19860, 7471)
     try:
-        with CrazyflieBackend(uris(19860), U_MAX, ASM.module_rotations) as be:
+        with backend(19860) as be:
             peers.check_commands_and_state(be, peer)
-            assert be.preflight().issues == ("module 0 is emergency-stopped (restart it)",
-                                             "module 1 is emergency-stopped (restart it)")
+            assert be.preflight().issues == (
+                "module 0 (udp://127.0.0.1:19860) is locked by an emergency stop or watchdog: reboot it",
+                "module 1 (udp://127.0.0.1:19861) is locked by an emergency stop or watchdog: reboot it")
+    finally:
+        stop_peer(peer, th)
+
+
+def test_supervisor_arming_and_a_normal_end_that_does_not_latch():
+    peer, th = start_peer(19840, 7478, platform="bolt")
+    try:
+        with backend(19840) as be:
+            assert be.preflight().ok
+            assert not any(peer.firmware(i).supervisor.armed for i in range(ASM.n))  # a Bolt waits to be armed
+            hold(be, np.full(8, 0.5 * U_MAX), 0.2)
+            assert be.telemetry().motors.max() == 0.0
+            be.arm()
+            assert all(peer.firmware(i).supervisor.armed for i in range(ASM.n))
+            hold(be, np.full(8, 0.5 * U_MAX), 0.3)
+            np.testing.assert_allclose(be.telemetry().motors, 0.5 * U_MAX, rtol=1e-3)
+            assert all(s.supervisor_armed and s.armed and s.fresh for s in be.module_states())
+            be.disarm()
+        # Closing confirmed the disarm: supervisors disarmed, nothing locked, the modules can arm again.
+        assert not any(peer.firmware(i).supervisor.armed or peer.locked(i) for i in range(ASM.n))
+        with backend(19840) as be:
+            assert be.preflight().ok
+            be.arm()
+            hold(be, np.full(8, 0.25 * U_MAX), 0.3)
+            np.testing.assert_allclose(be.telemetry().motors, 0.25 * U_MAX, rtol=1e-3)
+            be.emergency_stop()
+        assert all(peer.locked(i) for i in range(ASM.n))
+        with backend(19840) as be, pytest.raises(ArmingError, match=r"module 0 \(udp://127.0.0.1:19840\): its "
+                                                                     r"supervisor refused"):
+            be.arm()  # a locked module cannot arm until rebooted
+    finally:
+        stop_peer(peer, th)
+
+
+def test_the_legacy_stop_alone_locks_a_module():
+    """Firmware before 2026.04 drops the supervisor port: the backend's stop also goes the legacy way."""
+    peer, th = start_peer(19836, 7479)
+    try:
+        with backend(19836) as be:
+            assert be.preflight().ok
+            for m in be._modules:
+                m.sender.post(CRTPPacket(wire.LEGACY_STOP_HEADER, bytes([wire.LEGACY_EMERGENCY_STOP])), True)
+            deadline = time.monotonic() + 1.0
+            while not all(peer.locked(i) for i in range(ASM.n)) and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert all(peer.locked(i) for i in range(ASM.n))
     finally:
         stop_peer(peer, th)
 
@@ -60,7 +97,8 @@ def test_commands_reach_the_modules_and_the_state_comes_back():
 def test_module_watchdog_and_link_loss():
     peer, th = start_peer(19864, 7472)
     try:
-        with CrazyflieBackend(uris(19864), U_MAX, ASM.module_rotations, CrazyflieSettings(link_timeout=0.1)) as be:
+        with backend(19864, link_timeout=0.1) as be:
+            assert be.preflight().ok
             be.arm()
             hold(be, np.full(8, 0.5 * U_MAX), 0.3)
             assert be.telemetry().motors.min() > 0.4 * U_MAX
@@ -71,20 +109,50 @@ def test_module_watchdog_and_link_loss():
         stop_peer(peer, th)
 
 
-def test_preflight_names_silent_and_weak_modules():
-    with CrazyflieBackend(uris(19868), U_MAX, ASM.module_rotations, CrazyflieSettings(preflight_timeout=0.3)) as be:
+def test_link_quality_is_measured_from_the_echo():
+    peer, th = start_peer(19832, 7477)
+    try:
+        with backend(19832) as be:
+            assert be.preflight().ok
+            hold(be, np.zeros(8), 0.6)
+            q = be.link_quality()
+            # Loopback: round trips well under the 15 ms bound, nothing lost; both measured for every module.
+            assert np.all(np.isfinite(q.latency_s)) and np.all(q.latency_s < 0.015)
+            assert np.all(q.loss == 0.0)
+            tel = be.telemetry()
+            np.testing.assert_array_equal(tel.link_loss, q.loss)
+    finally:
+        stop_peer(peer, th)
+
+
+def test_preflight_names_silent_weak_and_stock_modules():
+    with backend(19868, preflight_timeout=0.3) as be:
         assert be.preflight().issues == ("module 0 (udp://127.0.0.1:19868) does not answer",
                                          "module 1 (udp://127.0.0.1:19869) does not answer")
     peer, th = start_peer(19870, 7473, battery_v=3.3)
     try:
-        with CrazyflieBackend(uris(19870), U_MAX, ASM.module_rotations) as be:
-            assert be.preflight().issues == ("module 0 battery 3.30 V < 3.5 V", "module 1 battery 3.30 V < 3.5 V")
+        with backend(19870) as be:
+            issues = be.preflight().issues
+            assert issues[0] == "module 0 battery 3.30 V < 3.5 V"
+            # The Bolt map reaches c_f u_max only from 3.5 V on: at 3.3 V full command gives (3.3/3.5)^2 of it.
+            assert issues[1] == ("module 0 (udp://127.0.0.1:19870) reaches 1.38 N per rotor at 3.30 V; the "
+                                 "assembly assumes up to c_f u_max = 1.55 N")
+    finally:
+        stop_peer(peer, th)
+    peer, th = start_peer(19876, 7476, motor_app=False)
+    try:
+        with backend(19876, preflight_timeout=0.4) as be:
+            assert be.preflight().issues == (
+                "module 0 (udp://127.0.0.1:19876) sends no motor-app state: flash firmware/crazyflie_app "
+                "(motorApp.version 1)",
+                "module 1 (udp://127.0.0.1:19877) sends no motor-app state: flash firmware/crazyflie_app "
+                "(motorApp.version 1)")
     finally:
         stop_peer(peer, th)
 
 
 def test_unopenable_link():
     with pytest.raises(CrazyflieLinkError, match="cannot open radio://0/80/2M/E7E7E7E701"):
-        CrazyflieBackend(["radio://0/80/2M/E7E7E7E701"], U_MAX, ASM.module_rotations[:1]).connect()
+        CrazyflieBackend(["radio://0/80/2M/E7E7E7E701"], ASM.params, ASM.module_rotations[:1]).connect()
     with pytest.raises(ValueError, match="2 links for 1 modules"):
-        CrazyflieBackend(["udp://127.0.0.1:1", "udp://127.0.0.1:2"], U_MAX, ASM.module_rotations[:1])
+        CrazyflieBackend(["udp://127.0.0.1:1", "udp://127.0.0.1:2"], ASM.params, ASM.module_rotations[:1])

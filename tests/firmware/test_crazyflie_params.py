@@ -1,35 +1,82 @@
 """Crazyflie parameters through cflib's real ``Crazyflie`` class (TOC, param service) against simulated modules."""
 
+import time
+
+from cflib.utils.power_switch import PowerSwitch
+
 from groundstation.firmware.crazyflie_params import check_crazyflie
-from groundstation.firmware.params import issues
+from groundstation.firmware.params import issues, load_param_file
 from sim.crazyflie_peer import SimulatedCrazyflies
-from tests.peers import start_peer, stop_peer
+from tests.peers import ROOT, start_peer, stop_peer
 
-WANTED = {"supervisor.tmblChckEn": 0, "stabilizer.controller": 6, "motorPowerSet.enable": 0}
+WANTED = load_param_file(ROOT / "firmware_params/crazyflie.toml")
 
 
-def test_check_apply_and_read_back(tmp_path):
+def reboot(peer, i: int, uri: str) -> None:
+    """Reboot module i as an operator would after an emergency stop: cflib's PowerSwitch over its link."""
+    boots = peer.firmware(i).boots
+    switch = PowerSwitch(uri)
+    switch.reboot_to_fw()
+    switch.close()
+    deadline = time.monotonic() + 2.0
+    while peer.firmware(i).boots == boots and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert peer.firmware(i).boots == boots + 1
+
+
+def test_check_apply_store_and_survive_a_reboot(tmp_path):
     peer, th = start_peer(SimulatedCrazyflies, 19720, 7603)
     try:
         uri = "udp://127.0.0.1:19721"
         checks = check_crazyflie(uri, 1, WANTED | {"nope.x": 1}, toc_cache=tmp_path / "toc")
+        # A motor-app build: version and controller are right from boot; tumble detection is on (stock).
         assert issues(checks) == ["module 1 (udp://127.0.0.1:19721): supervisor.tmblChckEn is 1, must be 0",
-                                  "module 1 (udp://127.0.0.1:19721): stabilizer.controller is 0, must be 6",
                                   "module 1 (udp://127.0.0.1:19721): nope.x is not in the module's parameters, "
                                   "must be 1"]
-        assert peer.firmware(1).value("supervisor.tmblChckEn") == 1  # a check writes nothing
+        assert peer.firmware(1).services.value("supervisor.tmblChckEn") == 1  # a check writes nothing
         checks = check_crazyflie(uri, 1, WANTED, apply=True, toc_cache=tmp_path / "toc")
-        assert issues(checks) == [] and [c.written for c in checks] == [True, True, False]
-        # The module itself now holds them (not just cflib's copy), and module 0 was not touched.
-        assert [peer.firmware(1).value(n) for n in WANTED] == [0, 6, 0]
-        assert peer.firmware(0).value("stabilizer.controller") == 0
+        assert issues(checks) == []
+        assert [(c.name, c.written, c.stored) for c in checks if c.written] == [("supervisor.tmblChckEn", True, True)]
+        # The module itself holds it, in EEPROM too, and module 0 was not touched.
+        assert peer.firmware(1).services.value("supervisor.tmblChckEn") == 0
+        assert peer.firmware(1).services.stored == {"supervisor.tmblChckEn": 0}
+        assert peer.firmware(0).services.value("supervisor.tmblChckEn") == 1
         assert list((tmp_path / "toc").iterdir())  # the TOC was cached for the next connection
-        assert issues(check_crazyflie(uri, 1, WANTED)) == []
+        # An emergency stop needs a reboot; the stored value survives it.
+        peer.firmware(1).supervisor.estop = True
+        reboot(peer, 1, uri)
+        assert not peer.locked(1)
+        assert issues(check_crazyflie(uri, 1, WANTED, toc_cache=tmp_path / "toc")) == []
     finally:
         stop_peer(peer, th)
 
 
-def test_silent_module_is_named():
-    checks = check_crazyflie("udp://127.0.0.1:19729", 0, WANTED, timeout=0.5)
-    assert all(c.actual is None and c.note for c in checks)
-    assert issues(checks)[0].startswith("module 0 (udp://127.0.0.1:19729): supervisor.tmblChckEn is ")
+def test_read_only_parameters_are_never_written():
+    peer, th = start_peer(SimulatedCrazyflies, 19724, 7604)
+    try:
+        uri = "udp://127.0.0.1:19724"
+        checks = check_crazyflie(uri, 0, {"motorApp.version": 2}, apply=True)
+        assert issues(checks) == ["module 0 (udp://127.0.0.1:19724): motorApp.version is 1, must be 2 (read-only: "
+                                  "flash the firmware that has it right)"]
+        assert not checks[0].written and peer.firmware(0).services.value("motorApp.version") == 1
+    finally:
+        stop_peer(peer, th)
+
+
+def test_stock_firmware_is_named():
+    peer, th = start_peer(SimulatedCrazyflies, 19726, 7605, motor_app=False)
+    try:
+        checks = check_crazyflie("udp://127.0.0.1:19726", 0, WANTED)
+        assert issues(checks) == [
+            "module 0 (udp://127.0.0.1:19726): motorApp.version is not in the module's parameters, must be 1",
+            "module 0 (udp://127.0.0.1:19726): supervisor.tmblChckEn is 1, must be 0",
+            "module 0 (udp://127.0.0.1:19726): stabilizer.controller is 1, must be 6"]
+    finally:
+        stop_peer(peer, th)
+
+
+def test_silent_module_is_named_once():
+    checks = check_crazyflie("udp://127.0.0.1:19729", 0, WANTED, timeout=0.3)
+    assert all(c.actual is None and c.unreachable for c in checks)
+    assert issues(checks) == ["module 0 (udp://127.0.0.1:19729) does not answer: Error communicating with the "
+                              "Crazyflie"]

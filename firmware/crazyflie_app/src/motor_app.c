@@ -1,0 +1,203 @@
+/*
+ * motor_app.c - firmware glue of the motor app: per-rotor commands from the ground station, over the CRTP app
+ * channel, into the out-of-tree controller in force mode.
+ *
+ * Two tasks touch the shared state:
+ *  - the app task (appMain -> motorAppStep) blocks on the app channel, keeps only the newest command (a 1-deep
+ *    mailbox, latest wins), feeds the commander watchdog with one setpoint per accepted command, and streams the
+ *    module's state about every 10 ms with the non-blocking send;
+ *  - the stabilizer task calls controllerOutOfTree() at 1 kHz, which outputs the newest command as normalized
+ *    forces, or zero unless it is armed, fresh and the supervisor is not locked.
+ * The pure rules live in motor_protocol.c; this file only moves data between them and the firmware.
+ */
+#include <string.h>
+
+#include "FreeRTOS.h"
+#include "app.h"
+#include "app_channel.h"
+#include "commander.h"
+#include "controller.h"
+#include "log.h"
+#include "param.h"
+#include "pm.h"
+#include "supervisor.h"
+#include "task.h"
+
+#define DEBUG_MODULE "MOTORAPP"
+#include "debug.h"
+
+#include "motor_app.h"
+#include "motor_protocol.h"
+
+#define DEG_TO_RAD 0.017453292519943295f
+
+static mp_mailbox_t mailbox;      /* app task writes, stabilizer task reads: under a critical section */
+static float gyroRad[3];          /* stabilizer task writes, app task reads: under a critical section */
+static uint16_t appliedCounts[4]; /* idem */
+static uint32_t lastStateTick;
+
+/* Parameters and log variables (see the PARAM/LOG groups at the end). */
+static uint8_t protocolVersion = MP_PROTOCOL_VERSION;
+static uint8_t broadcastSlot = 0;
+static uint16_t commandTimeoutMs = MOTOR_APP_COMMAND_TIMEOUT_MS;
+static uint16_t logReceived; /* copies of the mailbox counters for the log (they wrap like the wire fields) */
+static uint16_t logDropped;
+static uint32_t logOverflows;
+
+void motorAppInit(void) {
+  mp_mailbox_init(&mailbox);
+  memset(gyroRad, 0, sizeof gyroRad);
+  memset(appliedCounts, 0, sizeof appliedCounts);
+  lastStateTick = xTaskGetTickCount();
+  logReceived = 0;
+  logDropped = 0;
+  logOverflows = 0;
+}
+
+static void handlePacket(const uint8_t *data, size_t length) {
+  mp_command_t cmd;
+  const mp_status_t status = mp_decode_command(data, length, broadcastSlot, &cmd);
+  if (status == MP_NOT_FOR_US) {
+    return;  /* a broadcast for other modules */
+  }
+  bool accepted = false;
+  taskENTER_CRITICAL();
+  if (status == MP_OK) {
+    accepted = mp_mailbox_offer(&mailbox, &cmd, xTaskGetTickCount(), M2T(commandTimeoutMs));
+  } else {
+    mp_mailbox_drop(&mailbox);
+  }
+  taskEXIT_CRITICAL();
+  if (accepted) {
+    /* One setpoint per accepted command keeps the commander watchdog (level-out 500 ms, lock 2 s) on our
+     * stream: without it the idle high-level commander would keep the watchdog fed forever. The content is
+     * not used: the out-of-tree controller ignores the setpoint. */
+    setpoint_t setpoint;
+    memset(&setpoint, 0, sizeof setpoint);
+    commanderSetSetpoint(&setpoint, COMMANDER_PRIORITY_CRTP);
+  }
+}
+
+static void sendState(void) {
+  mp_state_t state;
+  memset(&state, 0, sizeof state);
+  taskENTER_CRITICAL();
+  const mp_mailbox_t box = mailbox;
+  memcpy(state.gyro, gyroRad, sizeof state.gyro);
+  memcpy(state.counts, appliedCounts, sizeof state.counts);
+  taskEXIT_CRITICAL();
+  const uint32_t now = xTaskGetTickCount();
+  const bool fresh = box.has_command && mp_ticks_since(now, box.accepted_tick) < M2T(commandTimeoutMs);
+  state.flags = (uint8_t)((box.has_command && box.latest.armed ? MP_STATE_ARMED : 0u) |
+                          (supervisorIsLocked() ? MP_STATE_LOCKED : 0u) |
+                          (supervisorIsArmed() ? MP_STATE_SUPERVISOR_ARMED : 0u) | (fresh ? MP_STATE_FRESH : 0u));
+  state.sequence = box.latest.sequence;
+  const float volts = pmGetBatteryVoltage();
+  state.battery_mv = volts <= 0.0f ? 0u : volts >= 65.0f ? 65000u : (uint16_t)(volts * 1000.0f + 0.5f);
+  state.received = box.received;
+  state.dropped = box.dropped;
+  logReceived = box.received;
+  logDropped = box.dropped;
+  uint8_t buffer[MP_STATE_SIZE];
+  const size_t size = mp_encode_state(&state, buffer, sizeof buffer);
+  /* Non-blocking: with no ground station listening the TX queue fills, and a blocking send would stop this
+   * task from taking commands. A state lost here is replaced 10 ms later. */
+  appchannelSendDataPacket(buffer, size);
+}
+
+void motorAppStep(void) {
+  uint8_t buffer[APPCHANNEL_MTU];
+  const uint32_t since = mp_ticks_since(xTaskGetTickCount(), lastStateTick);
+  const uint32_t period = M2T(MOTOR_APP_STATE_PERIOD_MS);
+  const int waitMs = since >= period ? 0 : (int)T2M(period - since);
+  /* Blocks until a packet or the next state report is due: never a busy loop, which would starve the
+   * priority-0 platform task that feeds the app channel (and with it every CRTP port, the stop included). */
+  size_t length = appchannelReceiveDataPacket(buffer, sizeof buffer, waitMs);
+  while (length > 0) {
+    handlePacket(buffer, length);
+    length = appchannelReceiveDataPacket(buffer, sizeof buffer, 0);  /* drain: the newest wins */
+  }
+  if (appchannelHasOverflowOccurred()) {
+    logOverflows++;
+    taskENTER_CRITICAL();
+    mp_mailbox_drop(&mailbox);
+    taskEXIT_CRITICAL();
+  }
+  const uint32_t now = xTaskGetTickCount();
+  if (mp_ticks_since(now, lastStateTick) >= period) {
+    lastStateTick = now;
+    sendState();
+  }
+}
+
+void appMain(void) {
+  DEBUG_PRINT("motor app v%u: waiting for commands on the app channel\n", (unsigned)protocolVersion);
+  motorAppInit();
+  for (;;) {
+    motorAppStep();
+  }
+}
+
+void controllerOutOfTreeInit(void) {}
+
+bool controllerOutOfTreeTest(void) { return true; }
+
+void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const sensorData_t *sensors,
+                         const state_t *state, const stabilizerStep_t stabilizerStep) {
+  (void)setpoint;
+  (void)state;
+  (void)stabilizerStep;
+  taskENTER_CRITICAL();
+  const mp_mailbox_t box = mailbox;
+  taskEXIT_CRITICAL();
+  float forces[4];
+  mp_gate_forces(&box, xTaskGetTickCount(), M2T(commandTimeoutMs), supervisorIsLocked(), forces);
+  control->controlMode = controlModeForce;
+  /* What reaches the motors: the stabilizer stops them anyway while the supervisor does not allow them to run
+   * (not armed, locked); the state report says so rather than echoing a command that is not applied. */
+  const bool running = supervisorAreMotorsAllowedToRun();
+  uint16_t counts[4];
+  for (unsigned q = 0; q < 4u; q++) {
+    control->normalizedForces[q] = forces[q];
+    counts[q] = running ? (uint16_t)(forces[q] * (float)MP_FULL_SCALE + 0.5f) : 0u;
+  }
+  taskENTER_CRITICAL();
+  gyroRad[0] = sensors->gyro.x * DEG_TO_RAD;
+  gyroRad[1] = sensors->gyro.y * DEG_TO_RAD;
+  gyroRad[2] = sensors->gyro.z * DEG_TO_RAD;
+  memcpy(appliedCounts, counts, sizeof appliedCounts);
+  taskEXIT_CRITICAL();
+}
+
+/**
+ * The motor app (firmware/crazyflie_app in the ground station's repository).
+ */
+PARAM_GROUP_START(motorApp)
+/**
+ * @brief Version of the ground station <-> app contract this build speaks (read-only)
+ */
+PARAM_ADD(PARAM_UINT8 | PARAM_RONLY, version, &protocolVersion)
+/**
+ * @brief Slot of this module in broadcast command packets (0..255)
+ */
+PARAM_ADD(PARAM_UINT8, slot, &broadcastSlot)
+/**
+ * @brief Motors stop when no command arrived for this long (ms, read-only)
+ */
+PARAM_ADD(PARAM_UINT16 | PARAM_RONLY, timeoutMs, &commandTimeoutMs)
+PARAM_GROUP_STOP(motorApp)
+
+LOG_GROUP_START(motorApp)
+/**
+ * @brief Commands accepted since start
+ */
+LOG_ADD(LOG_UINT16, rx, &logReceived)
+/**
+ * @brief Commands not applied: older than the newest, malformed, or lost to a full receive queue
+ */
+LOG_ADD(LOG_UINT16, drop, &logDropped)
+/**
+ * @brief Times the app channel's receive queue overflowed
+ */
+LOG_ADD(LOG_UINT32, overflow, &logOverflows)
+LOG_GROUP_STOP(motorApp)

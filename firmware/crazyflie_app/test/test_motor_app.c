@@ -1,0 +1,334 @@
+/*
+ * test_motor_app.c - host unit tests of the motor app: the pure protocol and gate (motor_protocol.c) and the
+ * firmware glue (motor_app.c) against the stand-ins in fake_firmware.c.
+ */
+#include <math.h>
+#include <string.h>
+
+#include "check.h"
+#include "controller.h"
+#include "fake_firmware.h"
+#include "log.h"
+#include "motor_app.h"
+#include "motor_protocol.h"
+#include "param.h"
+
+int check_failures = 0;
+int check_count = 0;
+
+extern const stub_param_t stub_params_motorApp[];
+extern const stub_log_t stub_logs_motorApp[];
+
+/* A unicast command as the ground station encodes it (crtp_wire.MotorCommand.pack). */
+static size_t command(uint8_t *buf, uint16_t seq, bool armed, uint16_t c0, uint16_t c1, uint16_t c2, uint16_t c3) {
+  const uint16_t c[4] = {c0, c1, c2, c3};
+  buf[0] = MP_KIND_COMMAND;
+  buf[1] = armed ? MP_FLAG_ARMED : 0u;
+  buf[2] = (uint8_t)(seq & 0xFF);
+  buf[3] = (uint8_t)(seq >> 8);
+  for (int q = 0; q < 4; q++) {
+    buf[4 + 2 * q] = (uint8_t)(c[q] & 0xFF);
+    buf[5 + 2 * q] = (uint8_t)(c[q] >> 8);
+  }
+  return MP_COMMAND_SIZE;
+}
+
+static void push_command(uint16_t seq, bool armed, uint16_t c) {
+  uint8_t buf[MP_COMMAND_SIZE];
+  command(buf, seq, armed, c, c, c, c);
+  CHECK(fake_push(buf, sizeof buf));
+}
+
+static void run_controller(control_t *control, float gyro_deg_s) {
+  setpoint_t sp;
+  sensorData_t sensors;
+  state_t state;
+  memset(&sp, 0, sizeof sp);
+  memset(&sensors, 0, sizeof sensors);
+  memset(&state, 0, sizeof state);
+  sensors.gyro.x = gyro_deg_s;
+  sensors.gyro.y = -2.0f * gyro_deg_s;
+  sensors.gyro.z = 0.5f;
+  memset(control, 0, sizeof *control);
+  controllerOutOfTree(control, &sp, &sensors, &state, 0);
+}
+
+/* -- pure protocol ------------------------------------------------------------------------------------------ */
+
+static void test_decode_unicast(void) {
+  uint8_t buf[32];
+  mp_command_t cmd;
+  size_t n = command(buf, 0xBEEF, true, 0, 1, 32768, 65535);
+  CHECK_EQ_INT(mp_decode_command(buf, n, 0, &cmd), MP_OK);
+  CHECK_EQ_INT(cmd.sequence, 0xBEEF);
+  CHECK(cmd.armed);
+  CHECK_EQ_INT(cmd.counts[0], 0);
+  CHECK_EQ_INT(cmd.counts[1], 1);
+  CHECK_EQ_INT(cmd.counts[2], 32768);
+  CHECK_EQ_INT(cmd.counts[3], 65535);
+  CHECK_EQ_INT(mp_decode_command(buf, n - 1, 0, &cmd), MP_BAD_LENGTH);
+  CHECK_EQ_INT(mp_decode_command(buf, n + 1, 0, &cmd), MP_BAD_LENGTH);
+  CHECK_EQ_INT(mp_decode_command(buf, 0, 0, &cmd), MP_BAD_LENGTH);
+  buf[0] = 0x81;
+  CHECK_EQ_INT(mp_decode_command(buf, n, 0, &cmd), MP_BAD_KIND);
+  buf[0] = MP_KIND_COMMAND;
+  buf[1] = 0xFE; /* other flag bits do not arm */
+  CHECK_EQ_INT(mp_decode_command(buf, n, 0, &cmd), MP_OK);
+  CHECK(!cmd.armed);
+}
+
+static void test_decode_broadcast(void) {
+  /* Two modules, slots 3 and 4: values 0, 4095, 2048, 1 and 4095, 0, 0, 4095, packed 12 bits each. */
+  const uint64_t a = 0ull | (4095ull << 12) | (2048ull << 24) | (1ull << 36);
+  const uint64_t b = 4095ull | (0ull << 12) | (0ull << 24) | (4095ull << 36);
+  uint8_t buf[MP_BROADCAST_HEADER_SIZE + 2 * MP_BROADCAST_MODULE_SIZE] = {MP_KIND_BROADCAST, 1, 0x34, 0x12, 3, 2};
+  for (int i = 0; i < 6; i++) {
+    buf[6 + i] = (uint8_t)(a >> (8 * i));
+    buf[12 + i] = (uint8_t)(b >> (8 * i));
+  }
+  mp_command_t cmd;
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 3, &cmd), MP_OK);
+  CHECK_EQ_INT(cmd.sequence, 0x1234);
+  CHECK(cmd.armed);
+  CHECK_EQ_INT(cmd.counts[0], 0);
+  CHECK_EQ_INT(cmd.counts[1], 65535);
+  CHECK_EQ_INT(cmd.counts[2], 32776); /* round(2048 * 65535 / 4095) */
+  CHECK_EQ_INT(cmd.counts[3], 16);
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 4, &cmd), MP_OK);
+  CHECK_EQ_INT(cmd.counts[0], 65535);
+  CHECK_EQ_INT(cmd.counts[3], 65535);
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 2, &cmd), MP_NOT_FOR_US);
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 5, &cmd), MP_NOT_FOR_US);
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf - 1, 3, &cmd), MP_BAD_LENGTH);
+  buf[5] = 5; /* more modules than fit in 30 bytes */
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 3, &cmd), MP_BAD_LENGTH);
+  buf[4] = 254;
+  buf[5] = 2; /* slots 254, 255: no overflow of the slot range */
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 255, &cmd), MP_OK);
+  CHECK_EQ_INT(mp_decode_command(buf, sizeof buf, 0, &cmd), MP_NOT_FOR_US);
+}
+
+static void test_encode_state(void) {
+  mp_state_t st = {.flags = 0x0B, .sequence = 0x0102, .counts = {1, 2, 0xFFFF, 0x8000}, .battery_mv = 3987,
+                   .gyro = {0.5f, -0.25f, 1.0f}, .received = 7, .dropped = 0xABCD};
+  uint8_t buf[MP_STATE_SIZE];
+  CHECK_EQ_INT(mp_encode_state(&st, buf, sizeof buf - 1), 0);
+  CHECK_EQ_INT(mp_encode_state(&st, buf, sizeof buf), MP_STATE_SIZE);
+  const uint8_t expect_head[14] = {0x81, 0x0B, 0x02, 0x01, 1, 0, 2, 0, 0xFF, 0xFF, 0x00, 0x80, 0x93, 0x0F};
+  CHECK(memcmp(buf, expect_head, sizeof expect_head) == 0);
+  const uint8_t half[4] = {0x00, 0x00, 0x00, 0x3F}; /* 0.5f */
+  CHECK(memcmp(buf + 14, half, 4) == 0);
+  CHECK_EQ_INT(buf[26], 7);
+  CHECK_EQ_INT(buf[28], 0xCD);
+  CHECK_EQ_INT(buf[29], 0xAB);
+}
+
+static void test_wrap_arithmetic(void) {
+  CHECK_EQ_INT(mp_ticks_since(5u, 0xFFFFFFFBu), 10);
+  CHECK_EQ_INT(mp_ticks_since(100u, 40u), 60);
+  CHECK(mp_sequence_after(1, 0));
+  CHECK(mp_sequence_after(0, 0xFFFF));
+  CHECK(mp_sequence_after(0x7FFF, 0));
+  CHECK(!mp_sequence_after(0x8000, 0));
+  CHECK(!mp_sequence_after(5, 5));
+  CHECK(!mp_sequence_after(4, 5));
+  CHECK(!mp_sequence_after(0xFFFF, 0));
+}
+
+static void test_mailbox_latest_wins(void) {
+  mp_mailbox_t box;
+  mp_mailbox_init(&box);
+  mp_command_t c = {.sequence = 10, .armed = true, .counts = {1, 1, 1, 1}};
+  CHECK(mp_mailbox_offer(&box, &c, 1000, 100));
+  c.sequence = 9; /* reordered: older */
+  CHECK(!mp_mailbox_offer(&box, &c, 1001, 100));
+  c.sequence = 10; /* duplicate */
+  CHECK(!mp_mailbox_offer(&box, &c, 1002, 100));
+  c.sequence = 12;
+  c.counts[0] = 7;
+  CHECK(mp_mailbox_offer(&box, &c, 1003, 100));
+  CHECK_EQ_INT(box.latest.counts[0], 7);
+  CHECK_EQ_INT(box.received, 2);
+  CHECK_EQ_INT(box.dropped, 2);
+  /* Wrap of the 16-bit sequence. */
+  box.latest.sequence = 0xFFFF;
+  c.sequence = 0;
+  CHECK(mp_mailbox_offer(&box, &c, 1004, 100));
+  /* A restarted ground station (counter anew) is accepted once the old stream is stale. */
+  c.sequence = 3;
+  box.latest.sequence = 20000; /* 3 is "before" 20000 on the wrapping counter */
+  CHECK(!mp_mailbox_offer(&box, &c, 1004 + 99, 100));
+  CHECK(mp_mailbox_offer(&box, &c, 1004 + 100, 100));
+  CHECK_EQ_INT(box.latest.sequence, 3);
+}
+
+static void test_gate(void) {
+  mp_mailbox_t box;
+  mp_mailbox_init(&box);
+  float f[4] = {9, 9, 9, 9};
+  CHECK_EQ_INT(mp_gate_forces(&box, 0, 100, false, f), MP_GATE_NO_COMMAND);
+  CHECK(f[0] == 0.0f && f[3] == 0.0f);
+  mp_command_t c = {.sequence = 1, .armed = true, .counts = {0, 65535, 32768, 13107}};
+  mp_mailbox_offer(&box, &c, 0xFFFFFFF0u, 100); /* arrives just before the tick counter wraps */
+  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, false, f), MP_GATE_RUN); /* 32 ticks later */
+  CHECK(f[0] == 0.0f && f[1] == 1.0f && fabsf(f[2] - 0.5f) < 1e-4f && fabsf(f[3] - 0.2f) < 1e-6f);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, true, f), MP_GATE_LOCKED);
+  CHECK(f[1] == 0.0f);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0xFFFFFFF0u + 99u, 100, false, f), MP_GATE_RUN);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0xFFFFFFF0u + 100u, 100, false, f), MP_GATE_STALE);
+  CHECK(f[1] == 0.0f);
+  c.sequence = 2;
+  c.armed = false;
+  mp_mailbox_offer(&box, &c, 500, 100);
+  CHECK_EQ_INT(mp_gate_forces(&box, 510, 100, false, f), MP_GATE_DISARMED);
+  CHECK(f[1] == 0.0f);
+}
+
+/* -- firmware glue -------------------------------------------------------------------------------------------- */
+
+static void test_commander_once_per_valid_packet(void) {
+  fake_reset();
+  motorAppInit();
+  push_command(1, true, 1000);
+  push_command(2, true, 2000);
+  uint8_t junk[5] = {MP_KIND_COMMAND, 1, 2, 3, 4}; /* too short */
+  CHECK(fake_push(junk, sizeof junk));
+  uint8_t other[MP_COMMAND_SIZE];
+  command(other, 3, true, 0, 0, 0, 0);
+  other[0] = 0x42; /* unknown kind */
+  CHECK(fake_push(other, sizeof other));
+  push_command(2, true, 9999); /* duplicate sequence */
+  motorAppStep();
+  CHECK_EQ_INT(fake.setpoints, 2);
+  CHECK_EQ_INT(fake.last_priority, 2); /* COMMANDER_PRIORITY_CRTP */
+  CHECK_EQ_INT(fake.rx_count, 0);       /* the queue was drained in one step */
+  control_t control;
+  run_controller(&control, 0.0f);
+  CHECK_EQ_INT(control.controlMode, controlModeForce);
+  CHECK(fabsf(control.normalizedForces[0] - 2000.0f / 65535.0f) < 1e-7f); /* the newest valid one */
+  CHECK_EQ_INT(fake.critical_depth, 0);
+  CHECK_EQ_INT(fake.max_critical_depth, 1);
+}
+
+static void test_zero_unless_armed_fresh_and_unlocked(void) {
+  fake_reset();
+  motorAppInit();
+  control_t control;
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] == 0.0f); /* nothing received yet */
+  push_command(1, false, 30000);
+  motorAppStep();
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] == 0.0f); /* not armed */
+  push_command(2, true, 30000);
+  motorAppStep();
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] > 0.45f);
+  fake.locked = true; /* emergency stop or commander watchdog: the supervisor locked */
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] == 0.0f && control.normalizedForces[3] == 0.0f);
+  fake.locked = false;
+  fake_advance(MOTOR_APP_COMMAND_TIMEOUT_MS - 1);
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] > 0.45f);
+  fake_advance(1); /* the ground station went silent: stop */
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] == 0.0f);
+}
+
+static void test_state_stream_unprompted(void) {
+  fake_reset();
+  motorAppInit();
+  fake.battery_v = 3.987f;
+  for (int i = 0; i < 20; i++) {
+    motorAppStep(); /* nothing arrives: each step waits for the next report and sends it */
+  }
+  CHECK_EQ_INT(fake.forever_waits, 0);
+  CHECK(fake.max_wait_ms <= MOTOR_APP_STATE_PERIOD_MS);
+  CHECK(fake.tx_count >= 19);
+  CHECK(fake.tick >= 190 && fake.tick <= 210); /* ~100 Hz: one report per 10 ms */
+  const fake_packet_t *p = fake_last_tx();
+  CHECK(p != NULL && p->size == MP_STATE_SIZE && p->data[0] == MP_KIND_STATE);
+  CHECK_EQ_INT(p->data[1], MP_STATE_SUPERVISOR_ARMED); /* no command: not armed, not fresh */
+  CHECK_EQ_INT(p->data[12] | (p->data[13] << 8), 3987);
+
+  push_command(77, true, 65535);
+  motorAppStep();
+  control_t control;
+  run_controller(&control, 180.0f); /* 180 deg/s about x */
+  fake_advance(MOTOR_APP_STATE_PERIOD_MS);
+  motorAppStep();
+  p = fake_last_tx();
+  CHECK_EQ_INT(p->data[1], MP_STATE_ARMED | MP_STATE_SUPERVISOR_ARMED | MP_STATE_FRESH);
+  CHECK_EQ_INT(p->data[2] | (p->data[3] << 8), 77);                  /* sequence echo */
+  CHECK_EQ_INT(p->data[4] | (p->data[5] << 8), 65535);               /* applied */
+  float gx, gy;
+  memcpy(&gx, p->data + 14, 4);
+  memcpy(&gy, p->data + 18, 4);
+  CHECK(fabsf(gx - 3.14159265f) < 1e-5f && fabsf(gy + 6.2831853f) < 1e-5f); /* deg/s -> rad/s */
+  CHECK_EQ_INT(p->data[26] | (p->data[27] << 8), 1);                 /* received */
+
+  fake.supervisor_armed = false; /* a platform that needs arming, not armed: the stabilizer stops the motors */
+  run_controller(&control, 0.0f);
+  CHECK(control.normalizedForces[0] == 1.0f); /* the command still reaches the controller output ... */
+  fake_advance(MOTOR_APP_STATE_PERIOD_MS);
+  motorAppStep();
+  p = fake_last_tx();
+  CHECK_EQ_INT(p->data[4] | (p->data[5] << 8), 0); /* ... but the report says nothing is applied */
+  CHECK_EQ_INT(p->data[1] & MP_STATE_SUPERVISOR_ARMED, 0);
+}
+
+static void test_send_never_blocks_and_overflow_counts(void) {
+  fake_reset();
+  motorAppInit();
+  fake.tx_full = true; /* nobody listening: the TX queue is full */
+  for (int i = 0; i < 5; i++) {
+    motorAppStep();
+  }
+  CHECK(fake.tx_failed >= 4);
+  fake.tx_full = false;
+  for (int i = 0; i < FAKE_RX_QUEUE + 3; i++) {
+    uint8_t buf[MP_COMMAND_SIZE];
+    command(buf, (uint16_t)(i + 1), true, 100, 100, 100, 100);
+    fake_push(buf, sizeof buf); /* the last three do not fit */
+  }
+  motorAppStep();
+  fake_advance(MOTOR_APP_STATE_PERIOD_MS);
+  motorAppStep();
+  const fake_packet_t *p = fake_last_tx();
+  CHECK_EQ_INT(p->data[26] | (p->data[27] << 8), FAKE_RX_QUEUE); /* received */
+  CHECK_EQ_INT(p->data[28] | (p->data[29] << 8), 1);             /* one overflow event */
+}
+
+static void test_params_and_logs(void) {
+  const stub_param_t *version = NULL;
+  for (const stub_param_t *p = stub_params_motorApp; p->name != NULL; p++) {
+    if (strcmp(p->name, "version") == 0) {
+      version = p;
+    }
+  }
+  CHECK(version != NULL);
+  CHECK((version->type & PARAM_RONLY) != 0);
+  CHECK_EQ_INT(*(const uint8_t *)version->address, MP_PROTOCOL_VERSION);
+  int logs = 0;
+  for (const stub_log_t *l = stub_logs_motorApp; l->name != NULL; l++) {
+    logs += strcmp(l->name, "rx") == 0 || strcmp(l->name, "drop") == 0;
+  }
+  CHECK_EQ_INT(logs, 2);
+}
+
+int main(void) {
+  test_decode_unicast();
+  test_decode_broadcast();
+  test_encode_state();
+  test_wrap_arithmetic();
+  test_mailbox_latest_wins();
+  test_gate();
+  test_commander_once_per_valid_packet();
+  test_zero_unless_armed_fresh_and_unlocked();
+  test_state_stream_unprompted();
+  test_send_never_blocks_and_overflow_counts();
+  test_params_and_logs();
+  printf("%d checks, %d failed\n", check_count, check_failures);
+  return check_failures == 0 ? 0 : 1;
+}
