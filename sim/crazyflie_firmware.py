@@ -33,8 +33,8 @@ from sim.crtp_services import FirmwareParam, FirmwareServices
 Platform = Literal["cf2", "cf21bl", "bolt"]
 REQUIRES_ARMING = {"cf2": False, "cf21bl": True, "bolt": True}
 """``CONFIG_MOTORS_REQUIRE_ARMING`` in each platform's defconfig (2026.08)."""
-COMMAND_TIMEOUT_S = 0.1
-"""The motor app's staleness timeout (``MOTOR_APP_COMMAND_TIMEOUT_MS``), s."""
+COMMAND_TIMEOUT_TICKS = 100
+"""The motor app's staleness timeout (``MOTOR_APP_COMMAND_TIMEOUT_MS``), in ticks of the 1 kHz kernel."""
 STATE_PERIOD_S = 0.01
 """The motor app's state report period, s."""
 PREFLIGHT_TIMEOUT_S = 30.0
@@ -46,36 +46,44 @@ POWER_SWITCH = 0xFE
 POWER_SYSOFF, POWER_SYSON, POWER_RESET = 0x02, 0x03, 0xF0
 
 
+def ticks(now: float) -> int:
+    """The firmware's tick count (1 kHz, wrapping at 32 bits) at time ``now`` (s)."""
+    return int(now * 1e3) & 0xFFFFFFFF
+
+
 class MotorApp:
-    """Python mirror of ``firmware/crazyflie_app/src/motor_protocol.c`` (mailbox and gate)."""
+    """Python mirror of ``firmware/crazyflie_app/src/motor_protocol.c`` (mailbox and gate), on ticks like the C."""
 
     def __init__(self) -> None:
         self.latest: wire.MotorCommand | None = None
-        self.accepted_at = 0.0
+        self.accepted_tick = 0
         self.received = 0
         self.dropped = 0
 
-    def offer(self, cmd: wire.MotorCommand, now: float, timeout: float = COMMAND_TIMEOUT_S) -> bool:
-        stale = self.latest is None or now - self.accepted_at >= timeout
+    def _age(self, tick: int) -> int:
+        return (tick - self.accepted_tick) & 0xFFFFFFFF
+
+    def offer(self, cmd: wire.MotorCommand, tick: int, timeout: int = COMMAND_TIMEOUT_TICKS) -> bool:
+        stale = self.latest is None or self._age(tick) >= timeout
         ahead = (cmd.sequence - self.latest.sequence) & 0xFFFF if self.latest is not None else 1
         if not stale and not 0 < ahead < 0x8000:
             self.dropped = (self.dropped + 1) & 0xFFFF
             return False
-        self.latest, self.accepted_at = cmd, now
+        self.latest, self.accepted_tick = cmd, tick
         self.received = (self.received + 1) & 0xFFFF
         return True
 
     def drop(self) -> None:
         self.dropped = (self.dropped + 1) & 0xFFFF
 
-    def forces(self, now: float, locked: bool, timeout: float = COMMAND_TIMEOUT_S) -> np.ndarray:
+    def forces(self, tick: int, locked: bool, timeout: int = COMMAND_TIMEOUT_TICKS) -> np.ndarray:
         """Normalized forces of the four rotors (zero unless armed, fresh and not locked)."""
-        if locked or self.latest is None or now - self.accepted_at >= timeout or not self.latest.armed:
+        if locked or self.latest is None or self._age(tick) >= timeout or not self.latest.armed:
             return np.zeros(4)
         return wire.from_counts(self.latest.counts)
 
-    def fresh(self, now: float, timeout: float = COMMAND_TIMEOUT_S) -> bool:
-        return self.latest is not None and now - self.accepted_at < timeout
+    def fresh(self, tick: int, timeout: int = COMMAND_TIMEOUT_TICKS) -> bool:
+        return self.latest is not None and self._age(tick) < timeout
 
 
 class Supervisor:
@@ -166,8 +174,7 @@ def module_params(build: FirmwareBuild) -> list[FirmwareParam]:
     if build.motor_app:
         params += [FirmwareParam("motorApp", "version", "uint8", wire.APP_VERSION, read_only=True),
                    FirmwareParam("motorApp", "slot", "uint8", 0),
-                   FirmwareParam("motorApp", "timeoutMs", "uint16", round(COMMAND_TIMEOUT_S * 1e3),
-                                 read_only=True)]
+                   FirmwareParam("motorApp", "timeoutMs", "uint16", COMMAND_TIMEOUT_TICKS, read_only=True)]
     return params
 
 
@@ -225,7 +232,7 @@ class SimulatedCrazyflie:
         except ValueError:
             self.app.drop()
             return
-        if self.app.offer(cmd, now):
+        if self.app.offer(cmd, ticks(now)):
             self.last_setpoint = now  # commanderSetSetpoint(..., COMMANDER_PRIORITY_CRTP)
 
     def _supervisor(self, head: int, body: bytes) -> list[bytes]:
@@ -251,12 +258,12 @@ class SimulatedCrazyflie:
         """Normalized forces reaching the motors now (the app's gate, then the supervisor's)."""
         if not self.powered or not self.build.motor_app or not self.supervisor.motors_allowed:
             return np.zeros(4)
-        return self.app.forces(now, self.supervisor.locked)
+        return self.app.forces(ticks(now), self.supervisor.locked)
 
     def step(self, now: float) -> None:
         """Advance the supervisor (once per physics step)."""
         if self.powered:
-            over_idle = bool(np.any(self.app.forces(now, self.supervisor.locked) > 0))
+            over_idle = bool(np.any(self.app.forces(ticks(now), self.supervisor.locked) > 0))
             self.supervisor.step(now, over_idle, now - self.last_setpoint)
 
     def state_due(self, now: float) -> bool:
@@ -270,7 +277,7 @@ class SimulatedCrazyflie:
         flags = ((wire.STATE_ARMED if latest is not None and latest.armed else 0)
                  | (wire.STATE_LOCKED if self.supervisor.locked else 0)
                  | (wire.STATE_SUPERVISOR_ARMED if self.supervisor.armed else 0)
-                 | (wire.STATE_FRESH if self.app.fresh(now) else 0))
+                 | (wire.STATE_FRESH if self.app.fresh(ticks(now)) else 0))
         st = wire.ModuleState(flags, latest.sequence if latest is not None else 0, wire.to_counts(applied),
                               round(battery_v * 1e3), tuple(float(g) for g in gyro), self.app.received,
                               self.app.dropped)
