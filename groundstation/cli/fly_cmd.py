@@ -101,8 +101,8 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
                               f"{loop.get('start_error_ms_p99', 0):.3f} ms, {loop.get('overruns', 0)} overruns")
         Console().print(table)
     click.echo(f"log: {result.log_path}", err=True)
-    if result.phase != "done":
-        what = "did not start" if result.phase == "aborted" else f"ended in {result.phase}"
+    if not result.nominal:
+        what = {"aborted": "did not start", "done": "landed early"}.get(result.phase, f"ended in {result.phase}")
         click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)
         return EXIT_EMERGENCY
     return 0

@@ -2,8 +2,8 @@
 
 This opens a full cflib connection (table-of-contents download, all parameter values), which the flight's own
 link (raw link drivers, :mod:`groundstation.backends.crazyflie`) avoids; so it runs before the flight, never in
-it. Every wait is bounded by ``timeout``; a connection that does not come up is tried ``ATTEMPTS`` times (over a
-lossy link cflib's TOC download can stall). Written persistent parameters (``supervisor.tmblChckEn``) are also
+it. Every wait is bounded by ``timeout``; unanswered requests are repeated, and a connection that does not come up
+is tried ``ATTEMPTS`` times. Written persistent parameters (``supervisor.tmblChckEn``) are also
 stored in the module's EEPROM: an emergency stop locks a module until it is rebooted, and a reboot would bring
 back the stock value. Read-only parameters (``motorApp.version``) are never written: a wrong one means the wrong
 firmware is flashed.
@@ -56,6 +56,11 @@ def _connect(uri: str, timeout: float, cache: str | None) -> tuple[Crazyflie | N
     cf.fully_connected.add_callback(lambda _uri: ready.set())
     cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg).splitlines()[0]), ready.set()))
     cf.open_link(uri)
+    if cf.link is not None:
+        # cflib repeats an unanswered request only where the link driver asks for it (a radio without safelink);
+        # its UDP driver assumes loopback never loses a packet. A relayed or bridged link can: repeat there too
+        # (the requests are reads, and writes of the same value, so a repeat is harmless).
+        cf.link.needs_resending = True
     if ready.wait(timeout) and not failure:
         return cf, ""
     cf.close_link()

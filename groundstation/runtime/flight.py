@@ -75,9 +75,12 @@ class FailsafePolicy:
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
     geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
     """Box the measured position must stay in, world frame, m."""
-    max_link_latency_s: float = 0.015
-    """A module whose command round trip exceeds this (median over the backend's window) degrades the link, s;
-    20 ms of extra latency already upsets the two-module assembly's attitude loop at take-off."""
+    max_link_latency_s: float = 0.012
+    """A module whose command round trip exceeds this degrades the link (``on_link_degraded``), s. Measured with
+    the two-module assembly through a delaying relay: 2 ms of added one-way delay (round trip 7.8 ms) flies as
+    without; 5 ms (15.8 ms) triples the attitude error; 10 ms flips it."""
+    link_stop_latency_s: float = 0.025
+    """Beyond this round trip the motors stop whatever the policy: too slow to land on, s."""
     max_link_loss: float = 0.1
     """A module that does not accept this fraction of commands (lost or reordered) degrades the link."""
     on_link_degraded: Literal["land", "stop"] = "land"
@@ -198,9 +201,9 @@ class Flight:
         if not telemetry.link_ok:
             self._emergency(t, "backend link lost")
             return False
-        degraded = self._link_degraded(telemetry)
+        degraded, severe = self._link_degraded(telemetry)
         if degraded:
-            if self.policy.on_link_degraded == "stop":
+            if severe or self.policy.on_link_degraded == "stop":
                 self._emergency(t, degraded)
                 return False
             if self.phase != "landing" and self.phase in AIRBORNE and state is not None:
@@ -249,17 +252,20 @@ class Flight:
         self._record(t, state, sp, out, u, age, telemetry)
         return True
 
-    def _link_degraded(self, telemetry) -> str:
-        """Why the modules' links are too slow or lossy to fly on ("" if they are fine or not measured)."""
+    def _link_degraded(self, telemetry) -> tuple[str, bool]:
+        """Why the modules' links are too slow or lossy to fly on ("" if fine or not measured), and whether they
+        are too slow even to land on."""
         p = self.policy
         lat, loss = telemetry.link_latency_s, telemetry.link_loss
         if lat.size and np.nanmax(lat, initial=0.0) > p.max_link_latency_s:
             i = int(np.nanargmax(lat))
-            return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > {p.max_link_latency_s * 1e3:g} ms"
+            severe = lat[i] > p.link_stop_latency_s
+            bound = p.link_stop_latency_s if severe else p.max_link_latency_s
+            return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > {bound * 1e3:g} ms", severe
         if loss.size and np.nanmax(loss, initial=0.0) > p.max_link_loss:
             i = int(np.nanargmax(loss))
-            return f"link degraded: module {i} lost {loss[i]:.0%} of commands > {p.max_link_loss:.0%}"
-        return ""
+            return f"link degraded: module {i} lost {loss[i]:.0%} of commands > {p.max_link_loss:.0%}", False
+        return "", False
 
     def _log_motors_off(self, t: float) -> None:
         if self.log is not None:
@@ -302,7 +308,9 @@ class Flight:
             if len(self.rec.t) % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
                 self.log.record("/backend/telemetry", {"t": t, "link_ok": telemetry.link_ok,
                                                        "motors": telemetry.motors, "battery_v": telemetry.battery_v,
-                                                       "gyro": telemetry.gyro}, tw)
+                                                       "gyro": telemetry.gyro,
+                                                       "link_latency_s": telemetry.link_latency_s,
+                                                       "link_loss": telemetry.link_loss}, tw)
         if self.on_status is not None:
             battery = float(telemetry.battery_v.min()) if telemetry.battery_v.size else None
             st = self._stats

@@ -73,8 +73,14 @@ class FlyResult:
     phase: str
     """Final state: ``done`` (landed, disarmed), ``emergency`` (motors stopped) or ``aborted`` (never armed)."""
     reason: str
+    """Why the flight ended early ("" when it flew its plan; "operator land" when the operator cut it short)."""
     metrics: dict
     events: list = field(default_factory=list)
+
+    @property
+    def nominal(self) -> bool:
+        """Landed as planned or as the operator asked; a failsafe landing is not nominal."""
+        return self.phase == "done" and self.reason in ("", "operator land")
 
 
 class _LoggedPose:

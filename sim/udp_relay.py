@@ -1,0 +1,150 @@
+"""A loopback UDP relay that delays, drops, duplicates and reorders packets: link faults injected for real.
+
+    python -m sim.udp_relay --listen 19950 --target 19850 --links 2 --delay-ms 30 [--loss 0.02]
+                            [--duplicate 0.2] [--reorder 0.2 --reorder-ms 10] [--after 6] [--seed 1]
+
+Link i relays ``127.0.0.1:<listen + i>`` (what the ground station talks to) to ``127.0.0.1:<target + i>`` (a
+simulated module from ``groundstation sim-peer``) and the replies back. Every packet, in either direction, is
+delayed by ``--delay-ms``; lost with probability ``--loss``; sent twice with ``--duplicate``; and with
+``--reorder`` held back a further ``--reorder-ms`` so that later packets overtake it. Faults start ``--after``
+seconds after the first packet (a link that degrades mid-flight). Runs until SIGTERM/SIGINT and then prints how
+many packets it relayed, dropped, duplicated and reordered as one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import select
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Faults:
+    delay_s: float = 0.0
+    """Added one-way delay of every packet, s."""
+    loss: float = 0.0
+    """Probability a packet is dropped."""
+    duplicate: float = 0.0
+    """Probability a packet is sent twice."""
+    reorder: float = 0.0
+    """Probability a packet is held back by ``reorder_s`` more (later ones overtake it)."""
+    reorder_s: float = 0.01
+    after_s: float = 0.0
+    """Faults start this long after the first packet, s."""
+
+
+@dataclass
+class Counts:
+    relayed: int = 0
+    dropped: int = 0
+    duplicated: int = 0
+    reordered: int = 0
+    queue: list = field(default_factory=list, repr=False)
+
+
+class UdpRelay:
+    """``links`` relays on loopback; :meth:`run` serves them until :meth:`stop`."""
+
+    def __init__(self, listen_port: int, target_port: int, links: int, faults: Faults, seed: int = 0,
+                 host: str = "127.0.0.1") -> None:
+        self.faults = faults
+        self.counts = Counts()
+        self._rng = np.random.default_rng(seed)
+        self._front, self._back, self._client = [], [], [None] * links
+        self._targets = [(host, target_port + i) for i in range(links)]
+        for i in range(links):
+            front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            front.bind((host, listen_port + i))
+            back = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            back.bind((host, 0))
+            self._front.append(front)
+            self._back.append(back)
+        self._started: float | None = None
+        self._running = True
+        self._seq = 0
+
+    def stop(self, *_) -> None:
+        self._running = False
+
+    def _schedule(self, now: float, sock: socket.socket, data: bytes, addr) -> None:
+        f = self.faults
+        active = self._started is not None and now - self._started >= f.after_s
+        if active and self._rng.random() < f.loss:
+            self.counts.dropped += 1
+            return
+        delay = f.delay_s if active else 0.0
+        copies = 2 if active and self._rng.random() < f.duplicate else 1
+        self.counts.duplicated += copies - 1
+        if active and self._rng.random() < f.reorder:
+            delay += f.reorder_s
+            self.counts.reordered += 1
+        for _ in range(copies):
+            self._seq += 1
+            heapq.heappush(self.counts.queue, (now + delay, self._seq, sock, data, addr))
+
+    def run(self) -> Counts:
+        socks = self._front + self._back
+        while self._running:
+            q = self.counts.queue
+            timeout = max(0.0, q[0][0] - time.monotonic()) if q else 0.05
+            ready, _, _ = select.select(socks, [], [], min(timeout, 0.05))
+            now = time.monotonic()
+            for s in ready:
+                try:
+                    data, addr = s.recvfrom(2048)
+                except OSError:
+                    continue
+                self._started = now if self._started is None else self._started
+                if s in self._front:
+                    i = self._front.index(s)
+                    self._client[i] = addr
+                    self._schedule(now, self._back[i], data, self._targets[i])
+                else:
+                    i = self._back.index(s)
+                    if self._client[i] is not None:
+                        self._schedule(now, self._front[i], data, self._client[i])
+            while q and q[0][0] <= time.monotonic():
+                _, _, sock, data, addr = heapq.heappop(q)
+                try:
+                    sock.sendto(data, addr)
+                    self.counts.relayed += 1
+                except OSError:
+                    self.counts.dropped += 1
+        for s in socks:
+            s.close()
+        return self.counts
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--listen", type=int, required=True, help="first port the ground station talks to")
+    ap.add_argument("--target", type=int, required=True, help="first port of the simulated modules")
+    ap.add_argument("--links", type=int, default=1)
+    ap.add_argument("--delay-ms", type=float, default=0.0)
+    ap.add_argument("--loss", type=float, default=0.0)
+    ap.add_argument("--duplicate", type=float, default=0.0)
+    ap.add_argument("--reorder", type=float, default=0.0)
+    ap.add_argument("--reorder-ms", type=float, default=10.0)
+    ap.add_argument("--after", type=float, default=0.0, help="faults start this long after the first packet, s")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    relay = UdpRelay(a.listen, a.target, a.links,
+                     Faults(a.delay_ms * 1e-3, a.loss, a.duplicate, a.reorder, a.reorder_ms * 1e-3, a.after), a.seed)
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, relay.stop)
+    c = relay.run()
+    print(json.dumps({"relayed": c.relayed, "dropped": c.dropped, "duplicated": c.duplicated,
+                      "reordered": c.reordered}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
