@@ -52,8 +52,8 @@ STOP_REPEATS = 3
 MIN_LOSS_SAMPLES = 10
 """Fewest commands in the quality window for a loss figure."""
 PREFLIGHT_EXCHANGE_S = 1.0
-"""Preflight streams disarmed zeros this long and judges the loss over all of it (about 100 commands: a link
-losing 2 % shows over 10 % with probability ~1e-5), s."""
+"""Preflight streams disarmed zeros this long and judges the loss over all of it (250 commands at 250 Hz: a link
+losing 2 % shows over 10 % with probability below 1e-9), s."""
 
 
 class CrazyflieLinkError(BackendError):
@@ -164,12 +164,15 @@ class CrazyflieSettings:
     """Preflight: how long to wait for every module's answers, s (at least ``PREFLIGHT_EXCHANGE_S``)."""
     arm_timeout: float = 1.0
     """How long :meth:`CrazyflieBackend.arm` waits for every supervisor to confirm, s."""
+    command_period: float = 0.004
+    """The flight's control period: preflight streams and polls at it, so the round trips it measures are the
+    flight's (they include the wait for the next poll), s."""
     quality_window: float = 0.5
     """The loss is taken over the states of this last stretch, s."""
     latency_samples: int = 5
     """The round trip is the median of this many newest echoes (5 states: 50 ms, so a slow link is seen within
     a few attitude-loop time constants)."""
-    max_latency: float = 0.012
+    max_latency: float = 0.014
     """Preflight: largest acceptable command round trip (median over the window), s."""
     max_loss: float = 0.1
     """Preflight: largest acceptable fraction of commands lost or reordered."""
@@ -270,7 +273,7 @@ class CrazyflieBackend:
                 if m.version is None:
                     m.sender.post(CRTPPacket(wire.VERSION_HEADER, bytes([wire.GET_PROTOCOL_VERSION])), True)
             self._send_all(np.zeros((len(self._modules), 4)), armed=False)
-            time.sleep(0.01)
+            time.sleep(s.command_period)
             self._drain()
             heard_all = all(m.version is not None and m.heard >= since for m in self._modules)
             if heard_all and self._clock() >= settled:

@@ -75,11 +75,12 @@ class FailsafePolicy:
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
     geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
     """Box the measured position must stay in, world frame, m."""
-    max_link_latency_s: float = 0.012
-    """A module whose command round trip exceeds this degrades the link (``on_link_degraded``), s. Measured with
-    the two-module assembly through a delaying relay: 2 ms of added one-way delay (round trip 7.8 ms) flies as
-    without; 5 ms (15.8 ms) triples the attitude error; 10 ms flips it."""
-    link_stop_latency_s: float = 0.025
+    max_link_latency_s: float = 0.014
+    """A module whose command round trip exceeds this degrades the link (``on_link_degraded``), s. Measured at
+    250 Hz with the two-module assembly (the round trip steps by one 4 ms poll period): loopback 4 ms, one
+    module per emulated Crazyradio 8 ms (at most 12 ms); through a delaying relay, 2 ms of added one-way delay
+    (8 ms) flies as without, 5 ms (16 ms) triples the attitude error, 10 ms (24 ms) flips it."""
+    link_stop_latency_s: float = 0.020
     """Beyond this round trip the motors stop whatever the policy: too slow to land on, s."""
     max_link_loss: float = 0.1
     """A module that does not accept this fraction of commands (lost or reordered) degrades the link."""

@@ -110,9 +110,9 @@ class FailsafeSection:
     max_tilt_deg: float = Field(75.0, gt=0, le=180)
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
     geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
-    max_link_latency_s: float = Field(0.012, gt=0)
+    max_link_latency_s: float = Field(0.014, gt=0)
     """crazyflie: a module's command round trip beyond this (median of its newest echoes) is a degraded link, s."""
-    link_stop_latency_s: float = Field(0.025, gt=0)
+    link_stop_latency_s: float = Field(0.020, gt=0)
     """crazyflie: beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
     max_link_loss: float = Field(0.1, gt=0, le=1)
     """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded."""

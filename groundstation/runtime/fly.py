@@ -135,6 +135,7 @@ def _hardware_backend(cfg: FlightConfig, assembly, src: str) -> CrazyflieBackend
         f = cfg.failsafe
         return CrazyflieBackend(b.modules, assembly.params, assembly.module_rotations,
                                 CrazyflieSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
+                                                  command_period=1.0 / cfg.rate_hz,
                                                   max_latency=f.max_link_latency_s, max_loss=f.max_link_loss))
     return MavlinkBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
                           MavlinkSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,

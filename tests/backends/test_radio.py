@@ -1,0 +1,81 @@
+"""The Crazyflie backend over cflib's real radio driver, with the USB dongle emulated (sim.crazyradio_emulator):
+sends never wait for the radio, several dongles work in parallel, and a full figure-8 flies over them."""
+
+import threading
+import time
+
+import numpy as np
+
+from groundstation.backends.crazyflie import CrazyflieBackend
+from groundstation.runtime.fly import fly
+from sim.crazyflie_peer import SimulatedCrazyflies
+from sim.crazyradio_emulator import emulated_crazyradios
+from tests.peers import ASM, U_MAX, hold, start_peer, stop_peer
+from tests.runtime.test_fly import sitl_config
+
+RADIOS = ["radio://0/80/2M/E7E7E7E700", "radio://1/80/2M/E7E7E7E701"]
+
+
+def test_sends_never_wait_for_a_stalled_dongle():
+    peer, th = start_peer(SimulatedCrazyflies, 19940, 7482)
+    try:
+        with emulated_crazyradios(19940) as radio:
+            stalled = threading.Event()
+            radio.gate = stalled  # every transaction waits: the radio is stuck
+            be = CrazyflieBackend(RADIOS, ASM.params, ASM.module_rotations)
+            done = threading.Event()
+
+            def loop():
+                be.connect()
+                be._armed = True  # as after arm(): the commands carry the armed flag
+                for k in range(200):
+                    be.send(np.full(8, (k + 1) / 200 * 0.5 * U_MAX))
+                done.set()
+
+            sender = threading.Thread(target=loop, daemon=True)
+            sender.start()
+            assert done.wait(10.0), "send() blocked on the radio"
+            assert be.superseded >= 2 * 200 - 2 * 3  # nearly all replaced by newer ones while the radio was stuck
+            stalled.set()  # the radio comes back: the newest command goes out, not a backlog
+            deadline = time.monotonic() + 3.0
+            while time.monotonic() < deadline and any(
+                    peer.firmware(i).app.latest is None or peer.firmware(i).app.latest.sequence != be._seq
+                    for i in range(ASM.n)):
+                time.sleep(0.01)
+            assert all(peer.firmware(i).app.latest.sequence == be._seq for i in range(ASM.n))
+            be.close()
+    finally:
+        stop_peer(peer, th)
+
+
+def test_one_module_per_dongle_at_the_control_rate():
+    peer, th = start_peer(SimulatedCrazyflies, 19944, 7483)
+    try:
+        with emulated_crazyradios(19944) as radio:
+            with CrazyflieBackend(RADIOS, ASM.params, ASM.module_rotations) as be:
+                assert be.preflight().ok, be.preflight().issues
+                be.arm()
+                hold(be, np.full(8, 0.4 * U_MAX), 1.0)
+                np.testing.assert_allclose(be.telemetry().motors, 0.4 * U_MAX, rtol=1e-3)
+                q = be.link_quality()
+                assert np.all(q.latency_s < 0.014) and np.all(q.loss < 0.05)  # the flight's bounds
+                be.disarm()
+            assert set(radio.transactions) == {0, 1}  # each module on its own dongle
+    finally:
+        stop_peer(peer, th)
+
+
+def test_figure8_over_two_emulated_dongles(tmp_path):
+    """The SITL flight through cflib's radio driver (one module per dongle at 250 Hz), parameters included."""
+    peer, th = start_peer(SimulatedCrazyflies, 19948, 7484, params=(("supervisor.tmblChckEn", 0),))
+    try:
+        cfg = sitl_config(tmp_path, "crazyflie", 19948, "tcp/127.0.0.1:7484")
+        text = cfg.read_text().replace('"udp://127.0.0.1:19948", "udp://127.0.0.1:19949"',
+                                       ", ".join(f'"{u}"' for u in RADIOS))
+        assert RADIOS[0] in text
+        cfg.write_text(text)
+        with emulated_crazyradios(19948):
+            res = fly(cfg, duration=3.0, log_path=tmp_path / "radio.mcap")
+        assert res.phase == "done" and res.nominal and res.metrics["pos_rmse_m"] < 0.03
+    finally:
+        stop_peer(peer, th)
