@@ -1,7 +1,7 @@
 """Virtual motion capture: the simulator's physics pose published on Zenoh like a real mocap system.
 
 Called after every physics step; publishes at ``rate_hz`` with Gaussian noise and a latency (poses are held back
-and sent ``latency`` later), stamped with the host's monotonic clock at measurement time, the same codec and
+and sent ``latency`` later), stamped with the host's wall clock at measurement time, the same codec and
 keys the ``mocap-bridge`` uses, so a dry run goes through Zenoh end to end.
 """
 
@@ -27,7 +27,7 @@ class VirtualMocap:
     Call :meth:`close` to stop it."""
 
     def __init__(self, publisher: PosePublisher, rate_hz: float = 100.0, position_noise: float = 0.0,
-                 attitude_noise: float = 0.0, latency: float = 0.0, seed: int = 0, clock=time.monotonic,
+                 attitude_noise: float = 0.0, latency: float = 0.0, seed: int = 0, clock=time.time,
                  threaded: bool = False, activity: LoopActivity | None = None) -> None:
         self._pub = publisher
         self._period = 1.0 / rate_hz

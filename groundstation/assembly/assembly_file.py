@@ -63,6 +63,12 @@ def load_assembly(path: str | Path) -> tuple[Assembly, dict]:
         raise ConfigError("file not found", path=src) from None
     except (OSError, ValueError) as exc:
         raise ConfigError(f"not a JSON assembly file: {exc}", path=src) from None
+    return assembly_from_record(record, src), record
+
+
+def assembly_from_record(record, src: str) -> Assembly:
+    """Validate an assembly record (an assembly file's content, or a flight log's ``assembly`` metadata); errors
+    name ``src`` and the key."""
     if not isinstance(record, dict) or record.get("format") != FORMAT:
         raise ConfigError(f"expected format {FORMAT!r}", path=src, key="format")
     for key in ("module_params", "topology", "angles_deg", "modules"):
@@ -97,4 +103,4 @@ def load_assembly(path: str | Path) -> tuple[Assembly, dict]:
         u = np.asarray(record["u"], dtype=float)
         if u.ndim != 2 or u.shape[1] != 4 * topo.n:
             raise ConfigError(f"expected one list of {4 * topo.n} inputs per wrench", path=src, key="u")
-    return assembly, record
+    return assembly

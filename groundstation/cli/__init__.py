@@ -19,6 +19,7 @@ from groundstation.cli.enumerate_cmd import enumerate_command
 from groundstation.cli.fly_cmd import fly_command, log_group, mocap_bridge_command, sim_peer_command
 from groundstation.cli.optimize_cmd import optimize_command
 from groundstation.cli.params_cmd import params_command
+from groundstation.cli.replay_cmd import replay_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import BackendError, GroundstationError
 
@@ -42,6 +43,7 @@ cli.add_command(log_group)
 cli.add_command(mocap_bridge_command)
 cli.add_command(sim_peer_command)
 cli.add_command(params_command)
+cli.add_command(replay_command)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,11 +1,15 @@
 """One MCAP file per flight, written by a process of its own, finalized on every exit path.
 
 Protobuf channels use Foxglove's schemas so Foxglove shows the flight in 3D without set-up: mocap poses as
-received (``/mocap/<body>``, the Zenoh payload bytes unchanged), the state estimate (``/state/pose``),
-transforms world -> body (``/tf``), the assembly as a scene (``/scene``), events and errors (``/log``).
-Numeric records go on JSON channels with a JSON schema, which Foxglove plots directly: ``/control`` (one per
-period: flight state, setpoint, desired wrench, per-module motor commands, loop timing), ``/backend/telemetry``,
-``/loop/timing`` (summary), ``/flight/summary``.
+received (``/mocap/<body>``, the Zenoh payload bytes unchanged; publish time = the mocap's stamp), the state
+estimate (``/state/pose``), transforms world -> body -> module_<i> (``/tf``), the assembly, the reference path
+and the geofence as a scene (``/scene``, :mod:`groundstation.flightlog.scene`), events and errors (``/log``).
+Numeric records go on JSON channels, each with its JSON Schema (:mod:`groundstation.flightlog.schemas`), which
+Foxglove plots directly: ``/control`` (one per period: phase, the state the controller used, setpoint, attitude
+target, roll and yaw targets, desired wrench, per-module motor commands, mocap age, loop timing),
+``/backend/telemetry`` (with link quality), ``/mocap/stats``, ``/loop/timing`` (summary), ``/flight/summary``.
+Every record's log time is on one clock (the flight's, as seconds since the epoch). The resolved config, the code
+version and the assembly are metadata, written first (a recovered log keeps them).
 
 Why a process: encoding and writing MCAP is Python work (JSON, protobuf, the ``mcap`` writer, chunk
 compression), and in the flight process it competed with the control loop for the GIL even when done between
@@ -14,6 +18,9 @@ the flight process only appends to a deque; a feeder thread, between control per
 into one frame down the writer's stdin (a few microseconds of GIL), and the writer process does the rest. The
 writer is started as ``python -m groundstation.flightlog.mcap_log``, not with multiprocessing, whose "spawn"
 would re-run the caller's main script in the child unless it is guarded by ``if __name__ == "__main__"``.
+
+Live view: with ``live_port``, the writer process also serves every record over the Foxglove WebSocket protocol
+(``foxglove-sdk``), so Foxglove shows the flight as it happens, at no cost to the flight process.
 
 Robustness: chunks are small (32 KiB) and the file is flushed about once a second. :meth:`FlightLog.close`
 finishes the file (summary, footer) and is called on normal exit, Ctrl-C and SIGTERM. If the flight process is
@@ -41,14 +48,15 @@ import numpy as np
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
-from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.timestamp_pb2 import Timestamp
-from mcap.records import Channel, Message, Schema
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.flightlog.scene import module_transforms, scene
+from groundstation.flightlog.schemas import schema_of
 from groundstation.rotations import matrix_to_quat
 from groundstation.runtime.loop import LoopActivity
 
@@ -66,7 +74,6 @@ first periods' starts (5 late periods in the first 50 ms of a 500 Hz flight)."""
 CLOSE_TIMEOUT_S = 10.0
 _FRAME = struct.Struct("<I")
 """Length prefix of each pickled batch on the writer's stdin."""
-_JSON_SCHEMA = json.dumps({"type": "object"}).encode()
 LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
 
 
@@ -74,6 +81,27 @@ def _jsonable(value):
     if isinstance(value, np.ndarray | np.generic):
         return value.tolist()
     raise TypeError(f"cannot log a {type(value).__name__} as JSON")
+
+
+def _rpy_deg(r: np.ndarray) -> list[float]:
+    """ZYX roll, pitch, yaw of a rotation matrix, deg."""
+    return np.degrees([np.arctan2(r[2, 1], r[2, 2]), -np.arcsin(np.clip(r[2, 0], -1, 1)),
+                       np.arctan2(r[1, 0], r[0, 0])]).tolist()
+
+
+def _with_attitudes(data):
+    """A JSON record with every ``rotation`` matrix replaced by ``orientation`` (quaternion) and ``rpy_deg``."""
+    if not isinstance(data, dict):
+        return data
+    out = {}
+    for k, v in data.items():
+        if k == "rotation":
+            r = np.asarray(v, float)
+            out["orientation"] = list(matrix_to_quat(r))
+            out["rpy_deg"] = _rpy_deg(r)
+        else:
+            out[k] = _with_attitudes(v)
+    return out
 
 
 def _stamp(t: float) -> Timestamp:
@@ -84,13 +112,13 @@ class FlightLog:
     """Thread-safe, non-blocking logger: calls enqueue; a feeder thread hands batches to the writer process."""
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
-                 activity: LoopActivity | None = None) -> None:
+                 activity: LoopActivity | None = None, live_port: int | None = None) -> None:
         self.path = Path(path)
         # A session of its own: the operator's Ctrl-C (a signal to the terminal's process group) lands the flight
         # and must not kill the log; the writer ends when its input does, at close or when this process dies.
         self._process = subprocess.Popen([sys.executable, "-m", "groundstation.flightlog.mcap_log"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
-        self._send([("open", str(self.path), dict(metadata or {}), 0.0)])
+        self._send([("open", str(self.path), {"metadata": dict(metadata or {}), "live_port": live_port}, 0.0)])
         # Producers append without waking anyone; the feeder runs between control periods (see LoopActivity).
         self._items: deque = deque()
         self._schemas: set[str] = set()
@@ -109,15 +137,17 @@ class FlightLog:
     def protobuf(self, topic: str, message, t: float) -> None:
         self.raw_protobuf(topic, type(message), message.SerializeToString(), t)
 
-    def raw_protobuf(self, topic: str, message_type, payload: bytes, t: float) -> None:
-        """Log already-serialized protobuf bytes (e.g. a Zenoh payload) under ``message_type``'s schema."""
+    def raw_protobuf(self, topic: str, message_type, payload: bytes, t: float,
+                     publish_time: float | None = None) -> None:
+        """Log already-serialized protobuf bytes (e.g. a Zenoh payload) under ``message_type``'s schema, at log time
+        ``t``; ``publish_time`` (default ``t``) is when the source produced it (s since the epoch)."""
         name = message_type.DESCRIPTOR.full_name
         if name not in self._schemas:  # once per type, before its first message
             # Queued before the name is marked sent, so another thread's message of this type cannot overtake it
             # (two threads may both send it; the writer registers it once).
             self._put(("schema", name, build_file_descriptor_set(message_type).SerializeToString(), t))
             self._schemas.add(name)
-        self._put(("pb", topic, (name, payload), t))
+        self._put(("pb", topic, (name, payload, t if publish_time is None else publish_time), t))
 
     def record(self, topic: str, data: dict, t: float) -> None:
         """A JSON record; numpy values are converted by the writer (pass copies of arrays you reuse)."""
@@ -130,19 +160,13 @@ class FlightLog:
         """A pose on ``topic`` and the matching world -> body transform on ``/tf`` (built by the writer)."""
         self._put(("pose", topic, (np.array(position, float), np.array(rotation, float)), t))
 
-    def scene(self, assembly: Assembly, t: float) -> None:
-        """The assembly as cubes (modules) and arrows (thrust axes) in the ``body`` frame."""
-        upd = SceneUpdate()
-        ent = upd.entities.add(timestamp=_stamp(t), frame_id="body", id="assembly")
-        hx, hy, hz = assembly.params.frame_half_extents
-        for p, r in zip(assembly.module_positions, assembly.module_rotations, strict=True):
-            cube = ent.cubes.add()
-            cube.pose.position.x, cube.pose.position.y, cube.pose.position.z = (float(v) for v in p)
-            q = cube.pose.orientation
-            q.x, q.y, q.z, q.w = matrix_to_quat(r)
-            cube.size.x, cube.size.y, cube.size.z = 2 * hx, 2 * hy, 2 * hz
-            cube.color.r, cube.color.g, cube.color.b, cube.color.a = 0.1, 0.1, 0.1, 0.9
-        self.protobuf("/scene", upd, t)
+    def scene(self, assembly: Assembly, t: float, reference: np.ndarray | None = None,
+              geofence: tuple | None = None) -> None:
+        """The assembly (frame-locked to ``body``), the module frames, the reference path and the geofence (see
+        :mod:`groundstation.flightlog.scene`)."""
+        for tf in module_transforms(assembly, t):
+            self.protobuf("/tf", tf, t)
+        self.protobuf("/scene", scene(assembly, t, reference, geofence), t)
 
     def _put(self, item) -> None:
         if self._closed:
@@ -193,37 +217,76 @@ class FlightLog:
         self.close()
 
 
+LIBRARY = "groundstation"
+"""The MCAP header's library field: how replay recognizes a flight log of this program."""
+
+
+class _Live:
+    """Every written record also served over the Foxglove WebSocket protocol (``foxglove-sdk``)."""
+
+    def __init__(self, port: int) -> None:
+        import foxglove
+
+        self._foxglove = foxglove
+        self._server = foxglove.start_server(name="groundstation", host="127.0.0.1", port=port)
+        self._channels: dict[str, object] = {}
+
+    def publish(self, topic: str, encoding: str, schema_name: str, schema_encoding: str, schema: bytes,
+                payload: bytes, ns: int) -> None:
+        ch = self._channels.get(topic)
+        if ch is None:
+            fg = self._foxglove
+            ch = self._channels[topic] = fg.Channel(topic, message_encoding=encoding,
+                                                    schema=fg.Schema(name=schema_name, encoding=schema_encoding,
+                                                                     data=schema))
+        ch.log(payload, log_time=ns)
+
+    def close(self) -> None:
+        self._server.stop()
+
+
 class _Writer:
     """The MCAP file, in the writer process."""
 
-    def __init__(self, path: str, metadata: dict[str, str]) -> None:
+    def __init__(self, path: str, metadata: dict[str, str], live_port: int | None = None) -> None:
         self._fh = open(path, "wb")  # noqa: SIM115 (closed in finish)
         self._mcap = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-        self._mcap.start(profile="", library="groundstation")
+        self._mcap.start(profile="", library=LIBRARY)
         for name, data in metadata.items():
             self._mcap.add_metadata(name, {"value": data})
-        self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
+        self._fh.flush()  # the metadata is on disk before the first message: a recovered log keeps it
+        self._channels: dict[str, tuple[int, str, str, str, bytes]] = {}
+        """topic -> (channel id, message encoding, schema name, schema encoding, schema data)."""
+        self._schemas: dict[str, tuple[int, bytes]] = {}
+        self._live = _Live(live_port) if live_port else None
         for cls in (PoseInFrame, FrameTransform):  # pose items are built here
             self._schema(cls.DESCRIPTOR.full_name, build_file_descriptor_set(cls).SerializeToString())
 
     def _schema(self, name: str, descriptor_set: bytes) -> None:
         if name not in self._schemas:
-            self._schemas[name] = self._mcap.register_schema(name, "protobuf", descriptor_set)
+            self._schemas[name] = (self._mcap.register_schema(name, "protobuf", descriptor_set), descriptor_set)
 
-    def _channel(self, topic: str, schema: str | None) -> int:
+    def _channel(self, topic: str, schema: str | None) -> tuple[int, str, str, str, bytes]:
         """The channel of ``topic``: protobuf of ``schema`` (registered before), or JSON if None."""
         if topic not in self._channels:
             if schema is None:
-                sid = self._mcap.register_schema(topic.strip("/").replace("/", "."), "jsonschema", _JSON_SCHEMA)
-                self._channels[topic] = self._mcap.register_channel(topic, "json", sid)
+                name, data = topic.strip("/").replace("/", "."), schema_of(topic)
+                sid = self._mcap.register_schema(name, "jsonschema", data)
+                self._channels[topic] = (self._mcap.register_channel(topic, "json", sid), "json", name,
+                                         "jsonschema", data)
             else:
-                self._channels[topic] = self._mcap.register_channel(topic, "protobuf", self._schemas[schema])
+                sid, data = self._schemas[schema]
+                self._channels[topic] = (self._mcap.register_channel(topic, "protobuf", sid), "protobuf", schema,
+                                         "protobuf", data)
         return self._channels[topic]
 
-    def _add(self, topic: str, schema: str | None, payload: bytes, t: float) -> None:
+    def _add(self, topic: str, schema: str | None, payload: bytes, t: float, publish: float | None = None) -> None:
         ns = int(t * 1e9)
-        self._mcap.add_message(self._channel(topic, schema), log_time=ns, data=payload, publish_time=ns)
+        cid, encoding, schema_name, schema_encoding, schema_data = self._channel(topic, schema)
+        self._mcap.add_message(cid, log_time=ns, data=payload,
+                               publish_time=ns if publish is None else int(publish * 1e9))
+        if self._live is not None:
+            self._live.publish(topic, encoding, schema_name, schema_encoding, schema_data, payload, ns)
 
     def write(self, item) -> None:
         kind, topic, data, t = item
@@ -241,9 +304,9 @@ class _Writer:
             self._add(topic, PoseInFrame.DESCRIPTOR.full_name, msg.SerializeToString(), t)
             self._add("/tf", FrameTransform.DESCRIPTOR.full_name, tf.SerializeToString(), t)
         elif kind == "json":
-            self._add(topic, None, json.dumps(data, default=_jsonable).encode(), t)
+            self._add(topic, None, json.dumps(_with_attitudes(data), default=_jsonable).encode(), t)
         else:
-            self._add(topic, data[0], data[1], t)
+            self._add(topic, data[0], data[1], t, data[2])
 
     def flush(self) -> None:
         self._fh.flush()
@@ -251,6 +314,8 @@ class _Writer:
     def finish(self) -> None:
         self._mcap.finish()
         self._fh.close()
+        if self._live is not None:
+            self._live.close()
 
 
 def _frames(fd: int, poll_s: float):
@@ -282,7 +347,7 @@ def _writer_main() -> None:
             stop = False
             for item in batch or ():
                 if item[0] == "open":
-                    writer = _Writer(item[1], item[2])
+                    writer = _Writer(item[1], item[2]["metadata"], item[2]["live_port"])
                 elif item[0] == "stop":
                     stop = True
                 else:
@@ -309,6 +374,8 @@ def recover(src: str | Path, dst: str | Path) -> dict:
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     messages: list[Message] = []
+    metadata: list[Metadata] = []
+    attachments: list[Attachment] = []
     clean = True
     with open(src, "rb") as fh:
         try:
@@ -319,11 +386,19 @@ def recover(src: str | Path, dst: str | Path) -> dict:
                     channels[rec.id] = rec
                 elif isinstance(rec, Message):
                     messages.append(rec)
+                elif isinstance(rec, Metadata):
+                    metadata.append(rec)
+                elif isinstance(rec, Attachment):
+                    attachments.append(rec)
         except Exception:  # truncated tail: everything before it is kept
             clean = False
     with open(dst, "wb") as out:
         w = Writer(out, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-        w.start(profile="", library="groundstation recover")
+        w.start(profile="", library=f"{LIBRARY} recover")
+        for m in metadata:
+            w.add_metadata(m.name, dict(m.metadata))
+        for a in attachments:
+            w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
         schema_map = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in schemas.items()}
         chan_map = {cid: w.register_channel(c.topic, c.message_encoding, schema_map.get(c.schema_id, 0),
                                             dict(c.metadata)) for cid, c in channels.items()}

@@ -2,7 +2,7 @@
 
 Systems: ``vicon``, ``optitrack``, ``qualisys``, ``vrpn`` and ``mock`` (libmotioncapture's simulated system,
 for dry runs and tests). The Python binding carries no timestamps, so every frame is stamped with the host's
-monotonic clock when ``waitForNextFrame`` returns (the age the subscriber measures then includes the system's
+wall clock when ``waitForNextFrame`` returns (the age the subscriber measures then includes the system's
 own latency, which is the conservative side).
 
 Frames: poses are published in a z-up world frame, metres. Vicon and Qualisys stream z-up; OptiTrack streams
@@ -60,7 +60,7 @@ def run_bridge(system: str, host: str, bodies: list[str], endpoint: str, key_pre
     try:
         while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
             mc.waitForNextFrame()
-            stamp = time.monotonic()
+            stamp = time.time()
             seen = mc.rigidBodies
             for b in bodies:
                 rb = seen.get(b)

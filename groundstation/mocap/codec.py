@@ -1,9 +1,11 @@
 """Wire format of motion-capture poses on Zenoh: protobuf ``foxglove.PoseInFrame`` plus an attachment.
 
 Payload: ``foxglove.PoseInFrame`` (frame ``world``, z up, metres; the same bytes are logged to MCAP unchanged and
-Foxglove draws them). Attachment: 16 bytes little-endian, ``uint64 sequence`` then ``float64 stamp`` (host
-seconds on the publisher's monotonic clock when the pose was measured), so a subscriber can detect drops and
-measure age without parsing the payload.
+Foxglove draws them). Attachment: 16 bytes little-endian, ``uint64 sequence`` then ``float64 stamp``, so a
+subscriber can detect drops without parsing the payload. The stamp (in the attachment and the payload's
+timestamp) is the publisher's wall clock (seconds since the epoch) when the pose was measured: the clock flight
+logs use, so a logged pose and the flight's records share one time base (across machines, as far as their clocks
+are synchronized).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ class PoseSample:
 
     sequence: int
     stamp: float
-    """Measurement time, publisher's monotonic clock, s."""
+    """Measurement time, publisher's wall clock, s since the epoch."""
     position: np.ndarray
     """World frame, m."""
     rotation: np.ndarray

@@ -92,9 +92,11 @@ class PoseSubscriber:
         self._omega = np.zeros(3)
         self.rejected = 0
         self.received = 0
+        self.accepted = 0
+        """Samples the estimate used."""
         self.malformed = 0
         self.missed = 0
-        self._raw: list[tuple[float, bytes]] = []
+        self._raw: list[tuple[float, bytes, float]] = []
         self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(self.RING))
 
     def poll(self) -> int:
@@ -115,7 +117,7 @@ class PoseSubscriber:
             self.malformed += 1
             return
         self.received += 1
-        self._raw.append((now, payload))
+        self._raw.append((now, payload, pose.stamp))
         last = self._last
         if last is not None:
             if pose.sequence <= last.sequence:
@@ -131,6 +133,7 @@ class PoseSubscriber:
             self._omega += a * (matrix_to_rotvec(last.rotation.T @ pose.rotation) / dt - self._omega)
         self._last = pose
         self._received_at = now
+        self.accepted += 1
 
     def state(self) -> RigidState | None:
         """Newest accepted pose with filtered velocities (angular: body frame), or None before the first."""
@@ -161,8 +164,9 @@ class PoseSubscriber:
             time.sleep(0.002)
         return True
 
-    def drain_raw(self) -> list[tuple[float, bytes]]:
-        """Payloads as received, with arrival (poll) times, since the last call (for logging)."""
+    def drain_raw(self) -> list[tuple[float, bytes, float]]:
+        """(arrival (poll) time on this clock, payload as received, the publisher's stamp) since the last call, for
+        logging."""
         self.poll()
         with self._lock:
             out, self._raw = self._raw, []

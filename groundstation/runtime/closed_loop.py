@@ -7,7 +7,6 @@ Pre-flight checks (hover feasibility from the allocation, the reference inside t
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Literal
@@ -21,7 +20,6 @@ from groundstation.control.model import ControlModel
 from groundstation.control.trajectory import FlightPlan
 from groundstation.design.task import GRAVITY
 from groundstation.errors import GroundstationError
-from groundstation.rotations import rotation_angle
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import LoopStats, SimClock
 
@@ -95,43 +93,30 @@ def fly_simulated(assembly: Assembly, plan: FlightPlan, backend, gains: Gains | 
     if not report.ok:
         raise PreflightError("backend preflight failed: " + "; ".join(report.issues))
     flight = Flight(assembly, plan, backend, PhysicsPoseSource(backend), gains=gains, allocation=allocation,
-                    policy=policy, log=log, truth=backend.true_state)
+                    policy=policy, log=log, truth=backend.true_state, record=True)
     wall0 = time.perf_counter()
     stats = flight.run(SimClock(backend), control_hz)
     return record_of(flight, time.perf_counter() - wall0, plan.duration, stats)
 
 
-def record_of(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> FlightRecord:
-    """Arrays of a finished flight, with its metrics."""
-    r = flight.rec
-    n_rot = 4 * flight.assembly.n
-    record = FlightRecord(np.array(r.t), np.array(r.position).reshape(-1, 3), np.array(r.rotation).reshape(-1, 3, 3),
-                          np.array(r.position_ref).reshape(-1, 3), np.array(r.rotation_desired).reshape(-1, 3, 3),
-                          np.array(r.roll_target), np.array(r.motors).reshape(-1, n_rot), np.array(r.phase), wall_s,
-                          flight.phase == "emergency", flight.reason if flight.phase == "emergency" else "")
-    metrics = flight_metrics(record, planned_s, flight.assembly.params.u_max)
+def flight_summary(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> dict:
+    """The flight's figures (:class:`~groundstation.runtime.metrics.FlightMetrics`) with its wall time, plan and
+    end, and the loop's timing."""
+    metrics = flight.metrics.result()
+    sim_s = metrics["simulated_s"]
+    metrics |= {"realtime_factor": sim_s / wall_s if wall_s > 0 else float("inf"), "planned_s": planned_s,
+                "crashed": flight.phase == "emergency"}
     if stats is not None:
         metrics["loop"] = stats.summary()
-    return dataclasses.replace(record, metrics=metrics)
+    return metrics
 
 
-def flight_metrics(rec: FlightRecord, planned_s: float, u_max: float) -> dict:
-    """Tracking figures: position over the tracking phase, attitude from the end of take-off on."""
-    track = rec.phase == "track"
-    airborne = np.isin(rec.phase, ("settle", "track", "hold"))
-    e = np.linalg.norm(rec.position - rec.position_ref, axis=1)
-    ang = np.degrees(rotation_angle(rec.rotation, rec.rotation_desired))
-    roll = np.degrees(np.arctan2(rec.rotation[:, 2, 1], rec.rotation[:, 2, 2])) if len(rec.t) else np.zeros(0)
-    roll_err = roll - np.degrees(rec.roll_target)
-    sim_s = float(rec.t[-1] + (rec.t[1] - rec.t[0])) if len(rec.t) > 1 else 0.0
-    return {
-        "pos_rmse_m": float(np.sqrt(np.mean(e[track] ** 2))) if track.any() else float("nan"),
-        "max_pos_error_m": float(e[track].max()) if track.any() else float("nan"),
-        "max_orientation_error_deg": float(ang[airborne].max()) if airborne.any() else float("nan"),
-        "max_roll_error_deg": float(np.abs(roll_err[airborne]).max()) if airborne.any() else float("nan"),
-        "max_motor_fraction": float(rec.motors.max() / u_max) if rec.motors.size else 0.0,
-        "realtime_factor": sim_s / rec.wall_s if rec.wall_s > 0 else float("inf"),
-        "simulated_s": sim_s,
-        "planned_s": planned_s,
-        "crashed": rec.crashed,
-    }
+def record_of(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> FlightRecord:
+    """Arrays of a finished flight flown with ``record=True``, with its metrics."""
+    r = flight.recording
+    n_rot = 4 * flight.assembly.n
+    return FlightRecord(np.array(r.t), np.array(r.position).reshape(-1, 3), np.array(r.rotation).reshape(-1, 3, 3),
+                        np.array(r.position_ref).reshape(-1, 3), np.array(r.rotation_desired).reshape(-1, 3, 3),
+                        np.array(r.roll_target), np.array(r.motors).reshape(-1, n_rot), np.array(r.phase), wall_s,
+                        flight.phase == "emergency", flight.reason if flight.phase == "emergency" else "",
+                        flight_summary(flight, wall_s, planned_s, stats))

@@ -39,6 +39,7 @@ from groundstation.runtime.loop import (
     collector_paused,
     run_fixed_rate,
 )
+from groundstation.runtime.metrics import FlightMetrics
 
 AIRBORNE = ("takeoff", "settle", "track", "hold")
 GC_INTERVAL_S = 1.0
@@ -116,6 +117,9 @@ class Status:
 
 @dataclass
 class Recording:
+    """Every period's state, for plots of a short simulated flight (``simulate --plot``); a flight flown with
+    ``fly`` keeps none (its log has everything, and :attr:`Flight.metrics` the figures)."""
+
     t: list = field(default_factory=list)
     position: list = field(default_factory=list)
     rotation: list = field(default_factory=list)
@@ -124,7 +128,6 @@ class Recording:
     roll_target: list = field(default_factory=list)
     motors: list = field(default_factory=list)
     phase: list = field(default_factory=list)
-    events: list = field(default_factory=list)
 
 
 class Flight:
@@ -134,7 +137,8 @@ class Flight:
                  allocation: Literal["clip", "bounded"] = "clip", policy: FailsafePolicy | None = None,
                  log=None, requests: Requests | None = None,
                  before_period: Callable[[float], None] | None = None, truth=None, on_status=None,
-                 activity: LoopActivity | None = None) -> None:
+                 activity: LoopActivity | None = None, record: bool = False,
+                 to_log_time: Callable[[float], float] | None = None) -> None:
         self.assembly, self.plan, self.backend, self.pose = assembly, plan, backend, pose
         self.gains = gains or Gains()
         self.model = ControlModel.from_assembly(assembly)
@@ -151,20 +155,33 @@ class Flight:
         self._rate_hz: float | None = None
         self.phase = "preflight"
         self.reason = ""
-        self.rec = Recording()
+        self.metrics = FlightMetrics(assembly.n)
+        """Running figures of the flight (bounded memory)."""
+        self.recording = Recording() if record else None
+        self.events: list[tuple[float, str, str]] = []
+        """(flight time s, level, text) of every transition and failsafe."""
+        self.periods = 0
+        """Control periods flown (the ones that computed a command)."""
         self._landing: tuple[float, Ramp] | None = None
         self._last_u = np.zeros(4 * assembly.n)
-        self._t_wall0 = time.time()
+        offset = time.time() - time.monotonic()
+        self._to_log = to_log_time or (lambda mono: mono + offset)
+        """Monotonic time -> log time (s since the epoch): one clock for every record of the flight's log."""
         self._lo = np.array(self.policy.geofence_lower)
         self._hi = np.array(self.policy.geofence_upper)
         self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
         self._stats: LoopStats | None = None
 
     # -- transitions ----------------------------------------------------------------------------------------------
+    def _log_time(self, t: float) -> float:
+        """Log time of flight time ``t`` (loop time since the first period)."""
+        st = self._stats
+        return self._to_log(st.t0 + t) if st is not None and st.t0 is not None else self._to_log(time.monotonic())
+
     def _event(self, t: float, level: str, text: str) -> None:
-        self.rec.events.append((t, level, text))
+        self.events.append((t, level, text))
         if self.log is not None:
-            self.log.event(level, text, self._t_wall0 + t)
+            self.log.event(level, text, self._log_time(t))
 
     def _set_phase(self, t: float, phase: str, why: str = "") -> None:
         if phase != self.phase:
@@ -275,7 +292,7 @@ class Flight:
             applied = self.backend.telemetry().motors.reshape(-1, 4) / self.model.u_max
             self.log.record("/control", {"t": t, "phase": self.phase, "motors": np.zeros_like(applied),
                                          "applied": applied,
-                                         "motors_off": True}, self._t_wall0 + t)
+                                         "motors_off": True}, self._log_time(t))
 
     def _finish(self, t: float) -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
@@ -284,29 +301,45 @@ class Flight:
         self._set_phase(t, "done", "landed")
 
     def _record(self, t, state, sp, out, u, age, telemetry) -> None:
-        truth = self.truth() if self.truth is not None else state
-        r = self.rec
-        r.t.append(t)
-        r.position.append(truth.position)
-        r.rotation.append(truth.rotation)
-        r.position_ref.append(sp.position)
-        r.rotation_desired.append(out.rotation_desired)
-        r.roll_target.append(roll_pitch_yaw(sp.rotation)[0])
-        r.motors.append(u)
-        r.phase.append(self.phase)
+        truth = self.truth() if self.truth is not None else None
+        flown = truth or state
+        roll_target, _, yaw_target = roll_pitch_yaw(sp.rotation)
+        fractions = u.reshape(-1, 4) / self.model.u_max
+        self.periods += 1
+        self.metrics.add(t, self.phase, flown.position, sp.position, flown.rotation, out.rotation_desired,
+                         roll_target, yaw_target, fractions, age)
+        r = self.recording
+        if r is not None:
+            r.t.append(t)
+            r.position.append(flown.position)
+            r.rotation.append(flown.rotation)
+            r.position_ref.append(sp.position)
+            r.rotation_desired.append(out.rotation_desired)
+            r.roll_target.append(roll_target)
+            r.motors.append(u)
+            r.phase.append(self.phase)
         if self.log is not None:
-            tw = self._t_wall0 + t
+            tw = self._log_time(t)
             self.log.pose("/state/pose", state.position, state.rotation, tw)
             # One record per period (fewer, larger messages keep the feeder's share of the GIL small); the arrays
-            # are fresh each period, so no copies are needed, and the writer process converts them.
+            # are fresh each period, so no copies are needed, and the writer process converts them (rotation
+            # matrices become a quaternion and roll/pitch/yaw there, off the control thread).
             st = self._stats
             timing = {"start_error_s": st.start_error[-1], "compute_s": st.compute[-1] if st.compute else 0.0,
                       "overruns": st.overruns} if st is not None and st.start_error else {}
-            self.log.record("/control", {"t": t, "phase": self.phase,
-                                         "setpoint": {"position": sp.position, "velocity": sp.velocity},
-                                         "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
-                                         "motors": u.reshape(-1, 4) / self.model.u_max, "loop": timing}, tw)
-            if len(self.rec.t) % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
+            record = {"t": t, "phase": self.phase,
+                      "state": {"position": state.position, "velocity": state.velocity, "rotation": state.rotation,
+                                "omega": state.omega},
+                      "setpoint": {"position": sp.position, "velocity": sp.velocity,
+                                   "acceleration": sp.acceleration, "rotation": sp.rotation, "omega": sp.omega},
+                      "attitude_target": {"rotation": out.rotation_desired},
+                      "roll_target_deg": np.degrees(roll_target), "yaw_target_deg": np.degrees(yaw_target),
+                      "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
+                      "motors": fractions, "mocap_age_s": age, "loop": timing}
+            if truth is not None:
+                record["truth"] = {"position": truth.position, "rotation": truth.rotation}
+            self.log.record("/control", record, tw)
+            if self.periods % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
                 self.log.record("/backend/telemetry", {"t": t, "link_ok": telemetry.link_ok,
                                                        "motors": telemetry.motors, "battery_v": telemetry.battery_v,
                                                        "gyro": telemetry.gyro,
@@ -317,7 +350,7 @@ class Flight:
             st = self._stats
             t_w, n_w = self._rate_window
             if t - t_w >= RATE_WINDOW_S:  # periods actually run, not the configured rate
-                self._rate_hz, self._rate_window = (len(self.rec.t) - n_w) / (t - t_w), (t, len(self.rec.t))
+                self._rate_hz, self._rate_window = (self.periods - n_w) / (t - t_w), (t, self.periods)
             self.on_status(Status(t, self.phase, age, float(u.max() / self.model.u_max), battery,
                                   st.overruns if st is not None else 0, self._rate_hz))
 
@@ -344,6 +377,7 @@ class Flight:
             """Idle time of a period: young-generation GC once a second, then the background threads' turn."""
             t0 = time.perf_counter()
             pending[0] += 1
+            self.metrics.add_timing(self._stats.start_error[-1], self._stats.compute[-1])
             if pending[0] >= every and collect_young(time_left):
                 pending[0] = 0
             if activity is not None:
@@ -365,16 +399,22 @@ class Flight:
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:
-            self._emergency(self.rec.t[-1] if self.rec.t else 0.0, f"{type(exc).__name__}: {exc}")
+            self._emergency(self._t_last(), f"{type(exc).__name__}: {exc}")
             raise
         finally:
             if activity is not None:
                 activity.end()  # no more periods: background threads may work freely
             if self.phase not in ("done", "emergency", "aborted"):
-                self._emergency(self.rec.t[-1] if self.rec.t else 0.0, "loop ended")
+                self._emergency(self._t_last(), "loop ended")
         if self.log is not None:
-            self.log.record("/loop/timing", stats.summary(), self._t_wall0 + (self.rec.t[-1] if self.rec.t else 0))
+            self.log.record("/loop/timing", stats.summary(), self._log_time(self._t_last()))
         return stats
+
+
+    def _t_last(self) -> float:
+        """Flight time of the last period that computed a command (0 before the first)."""
+        t = self.metrics.t_last
+        return 0.0 if t != t else t
 
 
 def _level(rotation: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog
 from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session, pose_key
-from groundstation.runtime.closed_loop import FlightVolume, PreflightError, hover_check, record_of, volume_check
+from groundstation.runtime.closed_loop import FlightVolume, PreflightError, flight_summary, hover_check, volume_check
 from groundstation.runtime.flight import FailsafePolicy, Flight, Requests
 from groundstation.runtime.flight_config import FlightConfig, load_flight_config
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopActivity, WallClock, realtime_priority
@@ -83,16 +83,35 @@ class FlyResult:
         return self.phase == "done" and self.reason in ("", "operator land")
 
 
-class _LoggedPose:
-    """The Zenoh subscriber as the flight's pose source; logs every received payload unchanged."""
+MOCAP_STATS_S = 1.0
+"""Interval of the mocap counters in the log, s."""
 
-    def __init__(self, sub: PoseSubscriber, log: FlightLog, topic: str, faults: Faults, wall_offset: float) -> None:
+
+class _LoggedPose:
+    """The Zenoh subscriber as the flight's pose source; logs every received payload unchanged, and the
+    subscriber's counters about once a second (``/mocap/stats``)."""
+
+    def __init__(self, sub: PoseSubscriber, log: FlightLog, topic: str, faults: Faults,
+                 to_log: Callable[[float], float]) -> None:
         self._sub, self._log, self._topic, self._faults = sub, log, topic, faults
-        self._offset = wall_offset
+        self._to_log = to_log
+        self._stats_at = (-np.inf, 0)
+        """(monotonic time, accepted count) of the last /mocap/stats record."""
 
     def state(self):
-        for t_mono, payload in self._sub.drain_raw():
-            self._log.raw_protobuf(self._topic, PoseInFrame, payload, t_mono + self._offset)
+        for t_mono, payload, stamp in self._sub.drain_raw():
+            # Log time: when the pose arrived (the flight's clock); publish time: when the mocap measured it (the
+            # publisher's wall clock, the stamp inside the payload).
+            self._log.raw_protobuf(self._topic, PoseInFrame, payload, self._to_log(t_mono), publish_time=stamp)
+        now = time.monotonic()
+        last, accepted = self._stats_at
+        if now - last >= MOCAP_STATS_S:
+            sub = self._sub
+            rate = (sub.accepted - accepted) / (now - last) if np.isfinite(last) else float("nan")
+            self._log.record("/mocap/stats", {"received": sub.received, "accepted": sub.accepted,
+                                              "rejected": sub.rejected, "malformed": sub.malformed,
+                                              "missed": sub.missed, "rate_hz": rate}, self._to_log(now))
+            self._stats_at = (now, sub.accepted)
         s = self._sub.state()
         if s is not None and self._faults.corrupt_pose:
             return type(s)(np.full(3, np.nan), s.velocity, s.rotation, s.omega)
@@ -189,6 +208,12 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     activity = activity or LoopActivity()
     ended_cleanly = [False]
+    offset = time.time() - time.monotonic()
+
+    def to_log(mono: float) -> float:
+        """Log time (s since the epoch) of a monotonic time: every record of the flight uses this one clock."""
+        return mono + offset
+
     with ExitStack() as stack:
         m = cfg.mocap
         if cfg.backend.kind == "sim":
@@ -218,8 +243,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
                                    "code_version": code_version(),
                                    "assembly": json.dumps(assembly_record(assembly))}, activity=activity)
         stack.callback(log.close)
-        wall_offset = time.time() - time.monotonic()
-        pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, wall_offset)
+        pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
 
         # Preflight: let the mocap stream start (and the simulator settle on the ground).
         deadline = time.monotonic() + PREFLIGHT_TIMEOUT_S
@@ -237,18 +261,20 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
                 issues.append("assembly is not level")
             if np.linalg.norm(s.velocity) > STILL_SPEED:
                 issues.append(f"assembly is moving ({np.linalg.norm(s.velocity):.2f} m/s)")
-        log.scene(assembly, time.time())
+        reference = np.array([plan(t_ref).position for t_ref in np.arange(0.0, plan.duration, 0.05)])
+        log.scene(assembly, to_log(time.monotonic()), reference,
+                  (tuple(policy.geofence_lower), tuple(policy.geofence_upper)))
         if issues:
-            log.event("error", "preflight failed: " + "; ".join(issues), time.time())
+            log.event("error", "preflight failed: " + "; ".join(issues), to_log(time.monotonic()))
             raise PreflightError("preflight failed: " + "; ".join(issues))
         # Take off from where mocap sees the assembly (hardware is never exactly at the nominal spot).
         plan = FlightPlan(tuple(float(v) for v in s.position), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
         volume_check(plan, volume)
-        log.event("info", "preflight passed", time.time())
+        log.event("info", "preflight passed", to_log(time.monotonic()))
 
         before = world.before_period(on_period) if world is not None else on_period
         flight = Flight(assembly, plan, backend, pose, gains=gains, allocation=cfg.allocation, policy=policy,
-                        log=log, requests=requests, before_period=before,
+                        log=log, requests=requests, before_period=before, to_log_time=to_log,
                         truth=world.backend.true_state if world is not None else None, on_status=on_status,
                         activity=activity)
         restore = _install_signals(requests) if handle_signals else None
@@ -261,18 +287,20 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             with realtime_priority(cfg.realtime_priority) as rt:
                 if cfg.realtime_priority and not rt:
                     log.event("warning", f"real-time priority {cfg.realtime_priority} not permitted (needs "
-                              "CAP_SYS_NICE or an rtprio limit): the loop runs at normal priority", time.time())
+                              "CAP_SYS_NICE or an rtprio limit): the loop runs at normal priority",
+                              to_log(time.monotonic()))
                 stats = flight.run(WallClock(SPIN_RT_S if rt else SPIN_S), cfg.rate_hz, realtime=rt)
         finally:
             sys.setswitchinterval(switch)
             if restore is not None:
                 restore()
         ended_cleanly[0] = flight.phase in ("done", "aborted")
-        record = record_of(flight, time.perf_counter() - wall0, plan.duration, stats)
-        log.record("/flight/summary", {k: v for k, v in record.metrics.items() if k != "loop"}, time.time())
+        metrics = flight_summary(flight, time.perf_counter() - wall0, plan.duration, stats)
+        log.record("/flight/summary", {k: v for k, v in metrics.items() if k != "loop"} | {
+            "phase": flight.phase, "reason": flight.reason}, to_log(time.monotonic()))
     if log.error is not None:
         raise ConfigError(f"the log writer failed: {log.error}", path=str(log_file))
-    return FlyResult(log_file, flight.phase, flight.reason, record.metrics, flight.rec.events)
+    return FlyResult(log_file, flight.phase, flight.reason, metrics, flight.events)
 
 
 class _SimulatedWorld:

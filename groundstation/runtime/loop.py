@@ -168,6 +168,8 @@ class LoopStats:
     """Clock time at which each overrunning period started (to line overruns up with other events)."""
     realtime: bool = False
     """The loop thread ran under real-time scheduling."""
+    t0: float | None = None
+    """Clock time period 0 was scheduled at (None before the loop starts)."""
 
     def summary(self) -> dict:
         e = np.abs(np.array(self.start_error)) * 1e3 if self.start_error else np.zeros(1)
@@ -191,6 +193,7 @@ def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Cl
     period = 1.0 / rate_hz
     stats = stats if stats is not None else LoopStats(period)
     t0 = clock.now()
+    stats.t0 = t0
     k = 0
     while max_periods is None or k < max_periods:
         deadline = t0 + k * period

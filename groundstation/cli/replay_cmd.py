@@ -1,0 +1,117 @@
+"""``groundstation replay``: the figure-8 analysis of flight logs, side by side."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from groundstation.cli.common import progress_bar, stderr_console, writable_output
+from groundstation.errors import UsageError
+
+ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_rmse_m", "position RMSE (m)"),
+        ("max_pos_error_m", "max position error (m)"), ("max_orientation_error_deg", "max attitude error (deg)"),
+        ("orientation_error_p95_deg", "attitude error p95 (deg)"), ("max_roll_error_deg", "max roll error (deg)"),
+        ("max_yaw_error_deg", "max yaw error (deg)"), ("max_motor_fraction", "max rotor (u/u_max)"),
+        ("saturation_fraction", "saturated (airborne, per module)"),
+        ("loop_period_error_p99_ms", "loop start error p99 (ms)"), ("overruns", "late periods"),
+        ("mocap_rate_hz", "mocap rate (Hz)"), ("mocap_age_p99_ms", "mocap age p99 (ms)"),
+        ("mocap_rejected", "mocap rejected"), ("mocap_malformed", "mocap malformed"),
+        ("battery_v_min", "battery min (V)"), ("link_latency_ms_max", "link round trip max (ms)"),
+        ("link_loss_max", "link loss max"))
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return "-" if math.isnan(v) else f"{v:.4g}"
+    if isinstance(v, list):
+        return ", ".join(_cell(x) for x in v) or "-"
+    return str(v) if v not in (None, "") else "-"
+
+
+def _jsonable(x):
+    if isinstance(x, float) and math.isnan(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+@click.command("replay")
+@click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON (one object per log).")
+@click.option("--plot", default=None, metavar="FILE.png", help="Write the Fig. 9-style figure, logs overlaid.")
+@click.option("--csv", "csv_dir", default=None, metavar="DIR", help="Write each log's periods and events as CSV.")
+@click.option("--from", "t_from", type=float, default=None, help="Start of the window, flight time s.")
+@click.option("--to", "t_to", type=float, default=None, help="End of the window, flight time s.")
+@click.option("--rerun", is_flag=True, help="Feed the logged states through this code's controller and "
+              "allocation and report how far the commands differ from the logged ones.")
+@click.option("--rerun-with", "rerun_with", default=None, metavar="FLIGHT.toml",
+              help="Re-run with the gains and allocation of this flight config instead of the log's.")
+def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_dir: str | None,
+                   t_from: float | None, t_to: float | None, rerun: bool, rerun_with: str | None) -> int:
+    """Analyse flight logs: tracking against the setpoint, attitude against its targets, loop timing, mocap,
+    motors, battery, link, and every event. Several logs are compared side by side."""
+    from groundstation.replay.analysis import analyse
+
+    plot_path = writable_output(plot, (".png", ".svg", ".pdf")) if plot else None
+    if csv_dir is not None and not Path(csv_dir).is_dir():
+        raise UsageError(f"{csv_dir}: not a directory")
+    if t_from is not None and t_to is not None and t_to <= t_from:
+        raise UsageError(f"--to ({t_to:g}) must be after --from ({t_from:g})")
+    gains = allocation = None
+    if rerun_with is not None:
+        from groundstation.control.geometric import Gains
+        from groundstation.runtime.flight_config import load_flight_config
+
+        cfg, _ = load_flight_config(rerun_with)
+        gains, allocation = Gains(**asdict(cfg.gains)), cfg.allocation
+    console = stderr_console()
+    replays = []
+    with progress_bar(console) as bar:
+        for path in logs:
+            task = bar.add_task(Path(path).name, total=1.0)
+            replays.append(analyse(path, t_from, t_to, rerun or rerun_with is not None, gains, allocation,
+                                   progress=lambda f, task=task: bar.update(task, completed=f)))
+            bar.update(task, completed=1.0)
+    if csv_dir is not None:
+        from groundstation.replay.export import export_csv
+
+        for path in logs:
+            for out in export_csv(path, csv_dir, t_from, t_to):
+                click.echo(f"csv: {out}", err=True)
+    if plot_path is not None:
+        from groundstation.replay.plots import plot_replays
+
+        plot_replays(replays, plot_path)
+        click.echo(f"plot: {plot_path}", err=True)
+    if as_json:
+        objs = [_jsonable({"log": str(r.path), "complete": r.complete, **r.metrics,
+                           "timeline": [{"t": t, "phase": p} for t, p in r.timeline],
+                           **({"rerun": r.rerun} if r.rerun is not None else {})}) for r in replays]
+        click.echo(json.dumps(objs[0] if len(objs) == 1 else objs))
+        return 0
+    table = Table(title="flight logs")
+    table.add_column("")
+    for r in replays:
+        table.add_column(r.path.name + ("" if r.complete else " (cut short)"))
+    for key, label in ROWS:
+        table.add_row(label, *(_cell(r.metrics.get(key)) for r in replays))
+    if any(r.rerun for r in replays):
+        table.add_row("re-run: max rotor diff (u/u_max)", *(_cell(r.rerun["max_motor_diff"]) if r.rerun else "-"
+                                                            for r in replays))
+    out = Console(width=160)
+    out.print(table)
+    for r in replays:
+        out.print(f"[bold]{r.path.name}[/]: " + " -> ".join(f"{p} ({t:.1f} s)" for t, p in r.timeline))
+        for t, level, text in r.events:
+            if level in ("warning", "error", "fatal"):
+                out.print(f"  [yellow]{t:8.2f} s {level}: {text}[/]")
+    return 0

@@ -1,0 +1,265 @@
+"""What a flight log says about the flight: the figures the flight reported, and more, from the log alone.
+
+:func:`analyse` streams a log once (:mod:`groundstation.replay.reader`) and feeds every control period to the
+same :class:`~groundstation.runtime.metrics.FlightMetrics` the flight used, so tracking and attitude figures match
+the flight's own; it adds what only the log has in one place: the flight-state timeline and every event, loop
+timing, mocap counters, battery and link quality per module, motor saturation per module, and time series for
+plots, decimated to a bounded number of points. Optionally it feeds the logged states and setpoints through the
+controller and allocation of the current code (:class:`Rerun`) and says how far the commands differ.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.assembly.assembly_file import assembly_from_record
+from groundstation.control.allocation import allocate, allocate_bounded
+from groundstation.control.geometric import Gains, control
+from groundstation.control.model import ControlModel
+from groundstation.control.state import RigidState, Setpoint
+from groundstation.errors import ConfigError
+from groundstation.replay.reader import open_log
+from groundstation.rotations import quat_to_matrix
+from groundstation.runtime.metrics import FlightMetrics
+
+SERIES_POINTS = 20_000
+"""Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
+PHASES = ("preflight", "takeoff", "settle", "track", "hold", "landing", "done", "emergency", "aborted")
+
+
+class Decimated:
+    """Rows of a stream, at most ``cap``: when full, every other row goes and the stride doubles."""
+
+    def __init__(self, cap: int = SERIES_POINTS) -> None:
+        self.cap = cap
+        self.stride = 1
+        self._k = 0
+        self.rows: list = []
+
+    def add(self, row) -> None:
+        if self._k % self.stride == 0:
+            self.rows.append(row)
+            if len(self.rows) > self.cap:
+                self.rows = self.rows[::2]
+                self.stride *= 2
+        self._k += 1
+
+
+@dataclass(frozen=True, eq=False)
+class Series:
+    """Decimated time series of a flight, for plots; angles in degrees, motors as fractions of u_max."""
+
+    t: np.ndarray
+    position: np.ndarray
+    """(k, 3) flown (the physics truth in simulation), m."""
+    position_ref: np.ndarray
+    rpy: np.ndarray
+    """(k, 3) roll, pitch, yaw flown, deg."""
+    rpy_target: np.ndarray
+    """(k, 3) of the attitude target the controller aimed at, deg."""
+    motors: np.ndarray
+    """(k, n, 4)."""
+    phase: np.ndarray
+    """(k,) index into PHASES."""
+
+
+@dataclass
+class RerunStats:
+    """The logged commands against the current code's, over the periods replayed."""
+
+    periods: int = 0
+    max_motor_diff: float = 0.0
+    """Largest |difference| of a rotor command, fraction of u_max."""
+    sum_sq: float = 0.0
+    max_force_diff_n: float = 0.0
+    max_torque_diff_nm: float = 0.0
+
+    def result(self) -> dict:
+        return {"periods": self.periods, "max_motor_diff": self.max_motor_diff,
+                "rms_motor_diff": math.sqrt(self.sum_sq / self.periods) if self.periods else float("nan"),
+                "max_force_diff_n": self.max_force_diff_n, "max_torque_diff_nm": self.max_torque_diff_nm}
+
+
+class Rerun:
+    """The logged state and setpoint of each period through :func:`~groundstation.control.geometric.control` and
+    the allocation of this code, with the log's assembly and (unless given) its gains and allocation mode."""
+
+    def __init__(self, assembly_record: dict, config: dict, gains: Gains | None = None,
+                 allocation: str | None = None, src: str = "log") -> None:
+        self.model = ControlModel.from_assembly(assembly_from_record(assembly_record, src))
+        self.gains = gains or Gains(**config["gains"])
+        mode = allocation or config.get("allocation", "clip")
+        self.alloc = allocate if mode == "clip" else allocate_bounded
+        self.stats = RerunStats()
+
+    def add(self, d: dict) -> None:
+        st, sp = d["state"], d["setpoint"]
+        state = RigidState(np.array(st["position"]), np.array(st["velocity"]),
+                           quat_to_matrix(np.array(st["orientation"])), np.array(st["omega"]))
+        setpoint = Setpoint(np.array(sp["position"]), np.array(sp["velocity"]), np.array(sp["acceleration"]),
+                            quat_to_matrix(np.array(sp["orientation"])), np.array(sp.get("omega", [0.0] * 3)))
+        out = control(state, setpoint, self.model, self.gains)
+        u = self.alloc(out.wrench, self.model) / self.model.u_max
+        diff = np.abs(u - np.asarray(d["motors"], float).reshape(-1))
+        s = self.stats
+        s.periods += 1
+        s.max_motor_diff = max(s.max_motor_diff, float(diff.max()))
+        s.sum_sq += float(diff @ diff) / diff.size
+        w = d["wrench"]
+        s.max_force_diff_n = max(s.max_force_diff_n, float(np.abs(out.wrench[:3] - w["force"]).max()))
+        s.max_torque_diff_nm = max(s.max_torque_diff_nm, float(np.abs(out.wrench[3:] - w["torque"]).max()))
+
+
+@dataclass
+class _Modules:
+    """Per-module battery and link figures from the telemetry records."""
+
+    battery_first: list = field(default_factory=list)
+    battery_last: list = field(default_factory=list)
+    battery_min: np.ndarray | None = None
+    latency_max: np.ndarray | None = None
+    latency_sum: np.ndarray | None = None
+    latency_n: np.ndarray | None = None
+    loss_max: np.ndarray | None = None
+
+    def add(self, d: dict) -> None:
+        b = np.asarray(d.get("battery_v", []), float)
+        if b.size:
+            self.battery_first = self.battery_first or b.tolist()
+            self.battery_last = b.tolist()
+            self.battery_min = b if self.battery_min is None else np.minimum(self.battery_min, b)
+        lat = np.asarray([np.nan if v is None else v for v in d.get("link_latency_s", [])], float)
+        if lat.size:
+            ok = np.isfinite(lat)
+            if self.latency_max is None:
+                self.latency_max, self.latency_sum = np.zeros(lat.size), np.zeros(lat.size)
+                self.latency_n, self.loss_max = np.zeros(lat.size), np.zeros(lat.size)
+            self.latency_max = np.where(ok, np.maximum(self.latency_max, np.where(ok, lat, 0)), self.latency_max)
+            self.latency_sum += np.where(ok, lat, 0.0)
+            self.latency_n += ok
+            loss = np.asarray([np.nan if v is None else v for v in d.get("link_loss", [])], float)
+            self.loss_max = np.fmax(self.loss_max, loss)
+
+    def result(self) -> dict:
+        out = {"battery_v_first": self.battery_first, "battery_v_last": self.battery_last,
+               "battery_v_min": [] if self.battery_min is None else self.battery_min.tolist()}
+        if self.latency_max is not None:
+            mean = np.where(self.latency_n > 0, self.latency_sum / np.maximum(self.latency_n, 1), np.nan)
+            out |= {"link_latency_ms_mean": (mean * 1e3).tolist(), "link_latency_ms_max": (self.latency_max * 1e3)
+                    .tolist(), "link_loss_max": self.loss_max.tolist()}
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class Replay:
+    """One flight log, analysed."""
+
+    path: Path
+    complete: bool
+    """The file ended cleanly (False: cut short by a crash; everything up to the cut was read)."""
+    metadata: dict
+    metrics: dict
+    events: list
+    """(flight time s, level, text), every event the flight logged."""
+    timeline: list
+    """(flight time s, phase) at every change of phase."""
+    series: Series
+    rerun: dict | None
+
+
+def _config(metadata: dict, src: str) -> dict:
+    try:
+        return json.loads(metadata.get("config", "{}"))
+    except ValueError:
+        raise ConfigError("the log's config metadata is not JSON", path=src, key="config") from None
+
+
+def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = None, rerun: bool = False,
+            gains: Gains | None = None, allocation: str | None = None, progress=None) -> Replay:
+    """Stream the flight log at ``path`` once; figures over flight time ``[t_from, t_to]`` (all if None).
+    ``progress(fraction)`` is told how much of the file has been read."""
+    log = open_log(path)
+    src = str(path)
+    metrics: FlightMetrics | None = None
+    series = Decimated()
+    modules = _Modules()
+    events_raw: list[tuple[float, str, str]] = []
+    timeline: list[tuple[float, str]] = []
+    mocap: dict = {}
+    loop_summary: dict = {}
+    summary: dict = {}
+    offset = None
+    overruns = 0
+    max_start_error = 0.0
+    rr: Rerun | None = None
+    lo = -math.inf if t_from is None else t_from
+    hi = math.inf if t_to is None else t_to
+    for rec in log.records(progress=progress):
+        d = rec.data
+        if rec.topic == "/control":
+            t = d["t"]
+            offset = rec.log_time - t if offset is None else offset
+            if not timeline or timeline[-1][1] != d["phase"]:
+                timeline.append((t, d["phase"]))
+            if "state" not in d or not lo <= t <= hi:
+                continue  # a motors-off record (the flight's last), or outside the window
+            if metrics is None:
+                metrics = FlightMetrics(len(d["motors"]))
+                if rerun:
+                    rr = Rerun(json.loads(log.metadata.get("assembly", "null")), _config(log.metadata, src),
+                               gains, allocation, src)
+            flown = d.get("truth", d["state"])
+            rotation = quat_to_matrix(np.array(flown["orientation"]))
+            target = quat_to_matrix(np.array(d["attitude_target"]["orientation"]))
+            motors = np.asarray(d["motors"], float)
+            metrics.add(t, d["phase"], flown["position"], d["setpoint"]["position"], rotation, target,
+                        math.radians(d["roll_target_deg"]), math.radians(d["yaw_target_deg"]), motors,
+                        d.get("mocap_age_s"))
+            loop = d.get("loop") or {}
+            if loop:
+                metrics.add_timing(loop["start_error_s"], loop["compute_s"])
+                overruns = max(overruns, loop["overruns"])
+                max_start_error = max(max_start_error, abs(loop["start_error_s"]))
+            series.add((t, flown["position"], d["setpoint"]["position"], flown["rpy_deg"],
+                        d["attitude_target"]["rpy_deg"], motors, PHASES.index(d["phase"])))
+            if rr is not None:
+                rr.add(d)
+        elif rec.topic == "/log":
+            events_raw.append((rec.log_time, *d))
+        elif rec.topic == "/backend/telemetry":
+            modules.add(d)
+        elif rec.topic == "/mocap/stats":
+            mocap = d
+        elif rec.topic == "/loop/timing":
+            loop_summary = d
+        elif rec.topic == "/flight/summary":
+            summary = d
+    if metrics is None:
+        raise ConfigError("the log has no control period to analyse" + (" in the window" if lo > -math.inf or
+                                                                          hi < math.inf else ""), path=src)
+    offset = offset or 0.0
+    events = [(lt - offset, level, text) for lt, level, text in events_raw]
+    end = summary.get("phase")
+    if end and timeline and timeline[-1][1] != end:  # the end state is only in the summary and the events
+        timeline.append((metrics.t_last, end))
+    m = metrics.result()
+    duration = (metrics.t_last - metrics.t_first) if metrics.periods > 1 else 0.0
+    m |= {"overruns": loop_summary.get("overruns", overruns), "loop_period_error_max_ms": max_start_error * 1e3,
+          "mocap_rate_hz": mocap.get("accepted", 0) / duration if duration > 0 and mocap else float("nan"),
+          "mocap_rejected": mocap.get("rejected", 0), "mocap_malformed": mocap.get("malformed", 0),
+          "mocap_missed": mocap.get("missed", 0), "duration_s": duration,
+          "phase": summary.get("phase", timeline[-1][1] if timeline else ""), "reason": summary.get("reason", ""),
+          "events": [{"t": t, "level": level, "text": text} for t, level, text in events]}
+    m |= modules.result()
+    rows = series.rows
+    s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
+               np.array([r[3] for r in rows]), np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),
+               np.array([r[6] for r in rows]))
+    meta = {"config": _config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
+            "config_path": log.metadata.get("config_path", "")}
+    return Replay(Path(path), log.complete, meta, m, events, timeline, s, rr.stats.result() if rr else None)

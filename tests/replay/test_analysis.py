@@ -1,0 +1,208 @@
+"""Replaying flight logs made by the suite's own flights: the figures match what the flight computed in flight,
+recomputed independently where possible; recovered, cut-short and telemetry-less logs replay too."""
+
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from groundstation.errors import ConfigError
+from groundstation.flightlog.mcap_log import recover
+from groundstation.replay.analysis import analyse
+from groundstation.replay.export import export_csv
+from groundstation.runtime.fly import fly
+from groundstation.runtime.metrics import FlightMetrics
+from tests.peers import ROOT, start_peer, stop_peer
+from tests.runtime.test_fly import config_with, sitl_config
+
+FIGURES = list(FlightMetrics(2).result())
+
+
+@pytest.fixture(scope="module")
+def sim_flight(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("replay")
+    cfg = config_with(tmp, endpoint="tcp/127.0.0.1:7485", **{"roll_deg = 0.0": "roll_deg = -5.0"})
+    log = tmp / "roll-5.mcap"
+    res = fly(cfg, duration=5.0, log_path=log)
+    assert res.phase == "done"
+    return res, log
+
+
+def same(a, b) -> bool:
+    if isinstance(a, list):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and math.isnan(a):
+        return math.isnan(b)
+    return a == pytest.approx(b, rel=1e-9, abs=1e-12)
+
+
+def test_replay_reproduces_the_flights_own_figures(sim_flight):
+    res, log = sim_flight
+    r = analyse(log)
+    assert r.complete
+    for key in FIGURES:
+        assert same(r.metrics[key], res.metrics[key]), (key, r.metrics[key], res.metrics[key])
+    assert r.metrics["phase"] == "done" and r.metrics["overruns"] == res.metrics["loop"]["overruns"]
+    assert [p for _, p in r.timeline] == ["takeoff", "settle", "track", "hold", "landing", "done"]
+    assert [text for _, _, text in r.events if "->" in text] == [text for _, _, text in res.events]
+
+
+def test_position_rmse_recomputed_from_the_csv(sim_flight, tmp_path):
+    """An independent computation: numpy over the exported rows, not the metrics code."""
+    res, log = sim_flight
+    control, events = export_csv(log, tmp_path)
+    with open(control) as fh:
+        rows = [r for r in csv.DictReader(fh) if r["phase"] == "track"]
+    p = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows])
+    ref = np.array([[float(r[k]) for k in ("x_ref_m", "y_ref_m", "z_ref_m")] for r in rows])
+    e = np.linalg.norm(p - ref, axis=1)
+    assert np.sqrt(np.mean(e**2)) == pytest.approx(res.metrics["pos_rmse_m"], rel=1e-9)
+    assert e.max() == pytest.approx(res.metrics["max_pos_error_m"], rel=1e-9)
+    roll_err = np.array([float(r["roll_deg"]) - float(r["roll_target_deg"]) for r in rows])
+    assert abs(np.mean([float(r["roll_target_deg"]) for r in rows]) + 5.0) < 1e-9  # the -5 deg target is logged
+    assert np.abs(roll_err).max() <= res.metrics["max_roll_error_deg"] + 1e-9
+    with open(events) as fh:
+        assert any("settle -> track" in r["text"] for r in csv.DictReader(fh))
+
+
+def test_every_record_is_on_one_clock(sim_flight):
+    _, log = sim_flight
+    with open(log, "rb") as fh:
+        reader = make_reader(fh)
+        control = [(m.log_time * 1e-9, json.loads(m.data)["t"]) for _, _, m in reader.iter_messages(["/control"])]
+    offsets = np.array([lt - t for lt, t in control])
+    assert offsets.max() - offsets.min() < 1e-6  # log time = loop start + flight time, every period
+    with open(log, "rb") as fh:
+        mocap = [(m.log_time * 1e-9, m.publish_time * 1e-9) for _, _, m in make_reader(fh).iter_messages(
+            ["/mocap/assembly"])]
+    with open(log, "rb") as fh:
+        events = [(m.log_time * 1e-9, m.data) for _, _, m in make_reader(fh).iter_messages(["/log"])]
+    arrival_minus_stamp = np.array([a - s for a, s in mocap])
+    # A pose is logged when it arrives, after the mocap measured it (5 ms simulated latency, one period of polling).
+    assert np.all(arrival_minus_stamp > 0) and np.median(arrival_minus_stamp) < 0.02
+    takeoff = [lt for lt, d in events if b"preflight -> takeoff" in d][0]
+    assert abs(takeoff - control[0][0]) < 1e-3  # the transition is stamped in the first period, on the same clock
+
+
+def test_rerun_matches_and_finds_gain_changes(sim_flight, tmp_path):
+    _, log = sim_flight
+    same_code = analyse(log, rerun=True).rerun
+    assert same_code["periods"] > 1000 and same_code["max_motor_diff"] < 1e-9
+    from groundstation.control.geometric import Gains
+
+    stiffer = analyse(log, rerun=True, gains=Gains(attitude_hz=6.0)).rerun
+    assert stiffer["max_motor_diff"] > 0.01 and stiffer["max_torque_diff_nm"] > 1e-3
+
+
+def test_window(sim_flight):
+    _, log = sim_flight
+    r = analyse(log, t_from=5.0, t_to=7.0)
+    assert r.series.t.min() >= 5.0 and r.series.t.max() <= 7.0
+    assert r.metrics["periods"] == pytest.approx(2.0 * 250, abs=2)
+
+
+def _copy_without(src, dst, drop: set[str]) -> None:
+    """The log minus some channels, and without the summary (as if written by an older writer)."""
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+
+    with open(src, "rb") as fh, open(dst, "wb") as out:
+        w = Writer(out)
+        w.start(profile="", library="groundstation")
+        schemas, channels = {}, {}
+        for rec in StreamReader(fh).records:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.topic not in drop:
+                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding, schemas[rec.schema_id])
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Message) and rec.channel_id in channels:
+                w.add_message(channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time)
+        w.finish()
+
+
+def test_log_without_telemetry_channels(sim_flight, tmp_path):
+    res, log = sim_flight
+    bare = tmp_path / "bare.mcap"
+    _copy_without(log, bare, {"/backend/telemetry", "/mocap/stats", "/loop/timing", "/flight/summary"})
+    r = analyse(bare)
+    for key in FIGURES:
+        assert same(r.metrics[key], res.metrics[key]), key
+    assert r.metrics["battery_v_min"] == [] and math.isnan(r.metrics["mocap_rate_hz"])
+
+
+def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
+    """Both processes killed: the file ends mid-chunk. The stream reader reads up to the cut; `log recover`
+    rewrites it whole, metadata (config, code version, assembly) included."""
+    _, log = sim_flight
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.6)])
+    partial = analyse(cut)
+    full = analyse(log)
+    assert not partial.complete and 0 < partial.metrics["periods"] < full.metrics["periods"]
+    assert partial.metadata["config"]["trajectory"]["roll_deg"] == -5.0
+    recovered = tmp_path / "recovered.mcap"
+    counts = recover(cut, recovered)
+    assert not counts["source_was_complete"]
+    again = analyse(recovered)
+    assert again.complete and again.metrics["periods"] == partial.metrics["periods"]
+    assert again.metadata == partial.metadata and again.metadata["code_version"]
+    with open(recovered, "rb") as fh:
+        names = {m.name for m in make_reader(fh).iter_metadata()}
+    assert {"config", "code_version", "assembly"} <= names
+
+
+def test_sigkill_of_a_flight_and_its_writer_then_replay(tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7486")
+    log = tmp_path / "killed.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "groundstation", "fly", str(cfg), "--log", str(log)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT, start_new_session=True)
+    time.sleep(8.0)  # in the air
+    writers = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True)  # its log writer
+    for pid in [int(p) for p in writers.stdout.split()] + [proc.pid]:
+        os.kill(pid, signal.SIGKILL)
+    proc.wait(10)
+    recovered = tmp_path / "recovered.mcap"
+    recover(log, recovered)
+    r = analyse(recovered)
+    assert r.metrics["periods"] > 250 and r.metadata["config"]["rate_hz"] == 250
+    assert r.timeline[0][1] == "takeoff" and r.timeline[-1][1] != "done"  # it never landed
+
+
+def test_a_hardware_backend_flight_replays_with_battery_and_link(tmp_path):
+    peer, th = start_peer(__import__("sim.crazyflie_peer").crazyflie_peer.SimulatedCrazyflies, 19930, 7487,
+                          params=(("supervisor.tmblChckEn", 0),))
+    try:
+        cfg = sitl_config(tmp_path, "crazyflie", 19930, "tcp/127.0.0.1:7487")
+        log = tmp_path / "cf.mcap"
+        res = fly(cfg, duration=3.0, log_path=log)
+        assert res.phase == "done"
+    finally:
+        stop_peer(peer, th)
+    r = analyse(log)
+    for key in FIGURES:
+        assert same(r.metrics[key], res.metrics[key]), key
+    assert r.metrics["battery_v_min"] == pytest.approx([4.0, 4.0])
+    assert all(0 < v < 14 for v in r.metrics["link_latency_ms_max"]) and r.metrics["link_loss_max"] == [0.0, 0.0]
+
+
+def test_not_a_flight_log(tmp_path):
+    with pytest.raises(ConfigError, match="not an MCAP file"):
+        analyse(ROOT / "README.md")
+    other = tmp_path / "other.mcap"
+    with open(other, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="", library="someone-else")
+        w.finish()
+    with pytest.raises(ConfigError, match="not a flight log of groundstation"):
+        analyse(other)
