@@ -40,7 +40,9 @@ def status_text(s, width: int) -> str:
 @click.option("--duration", type=float, default=None, help="Override the tracking time, s.")
 @click.option("--log", "log", default=None, metavar="FILE.mcap", help="Log here instead of the config's log_dir.")
 @click.option("--json", "as_json", is_flag=True, help="Print the flight's metrics as one JSON object.")
-def fly_command(flight: str, duration: float | None, log: str | None, as_json: bool) -> int:
+@click.option("--live", "live_port", type=click.IntRange(1024, 65535), default=None, metavar="PORT",
+              help="Serve the flight live to Foxglove (ws://127.0.0.1:PORT, e.g. 8765) while it flies.")
+def fly_command(flight: str, duration: float | None, log: str | None, as_json: bool, live_port: int | None) -> int:
     """Fly a flight config: connect, preflight, arm, take off, track, land.
 
     Ctrl-C (or l) lands; a second Ctrl-C (or k) stops the motors at once."""
@@ -79,8 +81,10 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         renderer.start()
     try:
         with KeyReader(requests):
+            if live_port is not None:
+                click.echo(f"live: open Foxglove, connect to ws://127.0.0.1:{live_port}", err=True)
             result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
-                         handle_signals=True, activity=activity)
+                         handle_signals=True, activity=activity, live_port=live_port)
     finally:
         done.set()
         if live is not None:

@@ -258,9 +258,16 @@ class _Writer:
         self._channels: dict[str, tuple[int, str, str, str, bytes]] = {}
         """topic -> (channel id, message encoding, schema name, schema encoding, schema data)."""
         self._schemas: dict[str, tuple[int, bytes]] = {}
-        self._live = _Live(live_port) if live_port else None
-        for cls in (PoseInFrame, FrameTransform):  # pose items are built here
+        self._live = None
+        for cls in (PoseInFrame, FrameTransform, Log):  # pose items are built here; Log for the live-view notice
             self._schema(cls.DESCRIPTOR.full_name, build_file_descriptor_set(cls).SerializeToString())
+        if live_port:
+            try:
+                self._live = _Live(live_port)
+            except Exception as exc:  # noqa: BLE001 - a port in use must not cost the log
+                note = Log(timestamp=_stamp(time.time()), level=Log.WARNING, name="groundstation",
+                           message=f"live view on port {live_port} unavailable: {exc}")
+                self._add("/log", Log.DESCRIPTOR.full_name, note.SerializeToString(), time.time())
 
     def _schema(self, name: str, descriptor_set: bytes) -> None:
         if name not in self._schemas:

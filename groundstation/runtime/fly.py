@@ -164,9 +164,10 @@ def _hardware_backend(cfg: FlightConfig, assembly, src: str) -> CrazyflieBackend
 def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
         requests: Requests | None = None, faults: Faults | None = None,
         on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
-        activity: LoopActivity | None = None) -> FlyResult:
+        activity: LoopActivity | None = None, live_port: int | None = None) -> FlyResult:
     """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
-    thread (e.g. a status display) work between control periods, like the log writer does."""
+    thread (e.g. a status display) work between control periods, like the log writer does. ``live_port``: serve
+    the log's channels over the Foxglove WebSocket protocol on 127.0.0.1 while flying (from the writer process)."""
     cfg, base = load_flight_config(config_path)
     src = str(config_path)
     if duration is not None:
@@ -241,7 +242,8 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
 
         log = FlightLog(log_file, {"config": json.dumps(asdict(cfg)), "config_path": src,
                                    "code_version": code_version(),
-                                   "assembly": json.dumps(assembly_record(assembly))}, activity=activity)
+                                   "assembly": json.dumps(assembly_record(assembly))}, activity=activity,
+                        live_port=live_port)
         stack.callback(log.close)
         pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
 

@@ -233,3 +233,11 @@ def test_preflight_refuses_modules_with_stock_parameters(tmp_path, kind, peer_cl
         assert "/control" not in counts and any(b"firmware parameter" in data for _, data in logs)
     finally:
         stop_peer(peer, th)
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs/flights").glob("*.toml")), ids=lambda p: p.stem)
+def test_shipped_flight_configs_load(path):
+    cfg, base = load_flight_config(path)
+    assert (base / cfg.assembly).is_file()
+    if cfg.backend.firmware_params is not None:
+        assert (base / cfg.backend.firmware_params).is_file()
