@@ -26,4 +26,4 @@ def print_table(title: str, columns: list[str], rows: list[list]) -> None:
         table.add_column(c, justify="right")
     for r in rows:
         table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r))
-    Console(width=140).print(table)
+    Console(width=max(140, 14 * len(columns))).print(table)
