@@ -28,8 +28,12 @@ def status_text(s, width: int) -> str:
     """The status line (rich markup) for a terminal ``width`` columns wide: the key hint only if it fits."""
     battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
     rate = f"{s.rate_hz:3.0f} Hz" if s.rate_hz is not None else "--- Hz"
-    text = (f"{s.phase:>9} t={s.t:6.1f} s  {rate}  mocap {s.mocap_age * 1e3:4.1f} ms  motor {s.worst_motor:4.0%}"
-            f"{battery}  late {s.overruns}")
+    m = s.mocap
+    bad = f" rej {m.rejected}" if m.rejected else ""
+    bad += f" bad {m.malformed}" if m.malformed else ""
+    bad += f" FOREIGN {m.foreign}" if m.foreign else ""
+    text = (f"{s.phase:>9} t={s.t:6.1f} s  {rate}  mocap {s.mocap_age * 1e3:4.1f} ms{bad}  motor "
+            f"{s.worst_motor:4.0%}{battery}  late {s.overruns}")
     if len(text) + len(KEYS_HINT) <= width:
         text += KEYS_HINT
     return f"[bold]{text[:9]}[/]{text[9:width]}"

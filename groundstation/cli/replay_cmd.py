@@ -20,6 +20,7 @@ ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_
         ("max_yaw_error_deg", "max yaw error (deg)"), ("max_motor_fraction", "max rotor (u/u_max)"),
         ("saturation_fraction", "saturated (airborne, per module)"),
         ("loop_period_error_p99_ms", "loop start error p99 (ms)"), ("overruns", "late periods"),
+        ("stalls", "loop stalls"),
         ("mocap_rate_hz", "mocap rate (Hz)"), ("mocap_age_p99_ms", "mocap age p99 (ms)"),
         ("mocap_rejected", "mocap rejected"), ("mocap_malformed", "mocap malformed"),
         ("battery_v_min", "battery min (V)"), ("link_latency_ms_max", "link round trip max (ms)"),

@@ -15,6 +15,27 @@ import numpy as np
 from groundstation.control.state import Setpoint
 
 TWO_PI = 2.0 * np.pi
+QUINTIC_SPEED = 1.875
+"""Largest slope of the quintic smoothstep 10 s^3 - 15 s^4 + 6 s^5 on [0, 1] (at s = 1/2)."""
+QUINTIC_ACCEL = 10.0 / math.sqrt(3.0)
+"""Largest |second derivative| of the quintic smoothstep on [0, 1] (at s = 1/2 -+ 1/sqrt(12))."""
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Analytic bounds of a reference over its whole duration (no sampling): what preflight checks."""
+
+    lower: tuple[float, float, float]
+    """Smallest position per axis, world, m."""
+    upper: tuple[float, float, float]
+    speed: float
+    """Largest speed, m/s."""
+    accel: float
+    """Largest acceleration, m/s^2."""
+
+    def union(self, other: Bounds) -> Bounds:
+        return Bounds(tuple(np.minimum(self.lower, other.lower)), tuple(np.maximum(self.upper, other.upper)),
+                      max(self.speed, other.speed), max(self.accel, other.accel))
 
 
 def euler_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -61,6 +82,9 @@ class Hover:
         z = np.zeros(3)
         return Setpoint(np.array(self.point, float), z, z.copy(), self.attitude.matrix)
 
+    def bounds(self) -> Bounds:
+        return Bounds(self.point, self.point, 0.0, 0.0)
+
 
 @dataclass(frozen=True)
 class Ramp:
@@ -82,6 +106,12 @@ class Ramp:
         a, b = np.array(self.start, float), np.array(self.end, float)
         return Setpoint(a + h * (b - a), dh * (b - a), ddh * (b - a), self.attitude.matrix)
 
+    def bounds(self) -> Bounds:
+        a, b = np.array(self.start, float), np.array(self.end, float)
+        length = float(np.linalg.norm(b - a))
+        return Bounds(tuple(np.minimum(a, b)), tuple(np.maximum(a, b)), QUINTIC_SPEED * length / self.duration,
+                      QUINTIC_ACCEL * length / self.duration**2)
+
 
 @dataclass(frozen=True)
 class Circle:
@@ -101,6 +131,10 @@ class Circle:
         p = np.array(self.center, float) + [r * c, r * s, 0.0]
         return Setpoint(p, np.array([-r * w * s, r * w * c, 0.0]), np.array([-r * w * w * c, -r * w * w * s, 0.0]),
                         self.attitude.matrix)
+
+    def bounds(self) -> Bounds:
+        w, r, c = TWO_PI / self.period, self.radius, np.array(self.center, float)
+        return Bounds(tuple(c - [r, r, 0.0]), tuple(c + [r, r, 0.0]), r * w, r * w * w)
 
 
 @dataclass(frozen=True)
@@ -128,6 +162,14 @@ class Figure8:
         v = np.array([l0 * w * c2, l0 * w * c, -l0 / 3 * w * c])
         a = np.array([-2 * l0 * w * w * s2, -l0 * w * w * s, l0 / 3 * w * w * s])
         return Setpoint(p, v, a, self.attitude.matrix)
+
+    def bounds(self) -> Bounds:
+        """Each coordinate reaches its extremes; speed and acceleration bounded per axis (|v_x| <= l0 w, ...)."""
+        w, l0 = TWO_PI / self.tc, self.l0
+        ext = np.array([0.5 * l0, l0, l0 / 3])
+        c = np.array([self.offset[0], self.offset[1], self.h0])
+        return Bounds(tuple(c - ext), tuple(c + ext), l0 * w * math.sqrt(2 + 1 / 9),
+                      l0 * w * w * math.sqrt(4 + 1 + 1 / 9))
 
 
 def _smoothstep(x: float) -> tuple[float, float, float]:
@@ -211,6 +253,19 @@ class FlightPlan:
         sp = Ramp(end, touchdown, self.landing_s)(t - t4)
         level = 1.0 - _smoothstep(2.0 * (t - t4) / self.landing_s)[0]
         return Setpoint(sp.position, sp.velocity, sp.acceleration, self._attitude(level))
+
+    def bounds(self) -> Bounds:
+        """Position box, speed and acceleration of the whole plan, from each piece's closed form: the tracking
+        trajectory through the time warp (speed scaled by at most 1, acceleration gains the warp's
+        ``v * s''`` term), take-off and landing ramps, and the hold points."""
+        start, end = self._ends
+        r = min(self.ramp_s, self.track.duration / 2)
+        tb = self.track.bounds()
+        warp_accel = tb.accel + (tb.speed * QUINTIC_SPEED / r if r > 0 else 0.0)
+        tracked = Bounds(tb.lower, tb.upper, tb.speed, warp_accel)
+        touchdown = (end[0], end[1], self.ground[2] - 0.02)
+        return (Ramp(self.ground, start, self.takeoff_s).bounds().union(tracked)
+                .union(Ramp(end, touchdown, self.landing_s).bounds()))
 
     def phase_at(self, t: float) -> str:
         for name, a, b in self.phases:

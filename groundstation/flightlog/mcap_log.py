@@ -169,8 +169,8 @@ class FlightLog:
         self.protobuf("/scene", scene(assembly, t, reference, geofence), t)
 
     def _put(self, item) -> None:
-        if self._closed:
-            self.dropped += 1
+        if self._closed or self.error is not None:
+            self.dropped += 1  # counted, not kept: a dead writer must not grow the queue for the rest of a flight
             return
         self._items.append(item)
 
@@ -179,13 +179,28 @@ class FlightLog:
         try:
             while True:
                 self._activity.wait_end(POLL_S)
+                if self._process.poll() is not None:  # the writer died (a full disk, a crash, killed)
+                    self._writer_gone()
+                    return
                 while self._items and (self._activity.may_work(FEED_BUDGET_S) or self._closed):
                     batch = [self._items.popleft() for _ in range(min(FEED_BATCH, len(self._items)))]
                     self._send(batch)
                     if batch[-1][0] == "stop":
                         return
-        except OSError as exc:  # the writer process is gone; close() reports why
-            self.error = self.error or f"the writer process stopped: {exc}"
+        except OSError:  # the writer process is gone
+            self._writer_gone()
+
+    def _writer_gone(self) -> None:
+        """Record why the writer stopped (its last words, or its exit) and stop queueing: :attr:`error` is what
+        the flight watches."""
+        why = ""
+        with contextlib.suppress(OSError, ValueError):
+            self._process.wait(1.0)
+            why = json.loads(self._process.stdout.read() or b"{}").get("error") or ""
+        code = self._process.poll()
+        self.error = self.error or (why or f"the writer process stopped (exit code {code})")
+        self.dropped += len(self._items)
+        self._items.clear()
 
     def _send(self, batch: list) -> None:
         frame = pickle.dumps(batch, protocol=pickle.HIGHEST_PROTOCOL)
@@ -205,8 +220,10 @@ class FlightLog:
         except subprocess.TimeoutExpired:
             self._process.kill()
             out, _ = self._process.communicate()
-        status = json.loads(out or b"{}").get("error")
-        self.error = status or self.error
+        except (OSError, ValueError):  # the writer died earlier and its pipes are gone (error already known)
+            out = b""
+        with contextlib.suppress(ValueError):
+            self.error = json.loads(out or b"{}").get("error") or self.error
         if self._process.returncode != 0 and self.error is None:
             self.error = f"the writer process exited with code {self._process.returncode}"
 
@@ -324,6 +341,12 @@ class _Writer:
         if self._live is not None:
             self._live.close()
 
+    def abandon(self) -> None:
+        """Close without the summary (it cannot be written): every complete chunk stays readable."""
+        if self._live is not None:
+            self._live.close()
+        self._fh.close()
+
 
 def _frames(fd: int, poll_s: float):
     """Yield each frame read from ``fd`` (None every ``poll_s`` without one); stop at end of file."""
@@ -364,11 +387,16 @@ def _writer_main() -> None:
             if writer is not None and time.monotonic() - last_flush >= FLUSH_S:
                 writer.flush()
                 last_flush = time.monotonic()
-    except Exception as exc:  # reported to the flight process, which raises it after the flight
+    except Exception as exc:  # reported to the flight process (it watches for it in flight)
         error = f"{type(exc).__name__}: {exc}"
     finally:
         if writer is not None:
-            writer.finish()
+            try:
+                writer.finish()
+            except Exception as exc:  # noqa: BLE001 - a full disk fails the footer too: what is written stays
+                error = error or f"{type(exc).__name__}: {exc}"
+                with contextlib.suppress(OSError):
+                    writer.abandon()
     with contextlib.suppress(OSError):  # nobody left to tell
         print(json.dumps({"error": error}), flush=True)
 

@@ -79,6 +79,8 @@ MOCAP_STATS = _obj("the pose subscriber's counters since the start, about once a
     "rejected": {"type": "integer", "description": "jumps, stale or out-of-order samples"},
     "malformed": {"type": "integer", "description": "samples that did not decode"},
     "missed": {"type": "integer", "description": "gaps in the publisher's sequence"},
+    "foreign": {"type": "integer", "description": "samples from a publisher other than the body's source"},
+    "resyncs": {"type": "integer", "description": "times the estimate followed a new consistent track"},
     "rate_hz": {"type": "number", "description": "accepted samples a second over the last interval"},
 }, required=("received", "rejected", "malformed"))
 

@@ -18,7 +18,7 @@ import zenoh
 from groundstation.control.state import RigidState
 from groundstation.errors import GroundstationError
 from groundstation.mocap.codec import PoseSample, decode, encode
-from groundstation.rotations import matrix_to_rotvec
+from groundstation.rotations import matrix_to_rotvec, rotation_angle, rotvec_to_matrix
 
 
 class LinkError(GroundstationError):
@@ -43,7 +43,8 @@ def pose_key(prefix: str, body: str) -> str:
 
 
 class PosePublisher:
-    """Publishes poses of one rigid body on its key (``<prefix>/<body>/pose``)."""
+    """Publishes poses of one rigid body on its key (``<prefix>/<body>/pose``), each with the publisher's Zenoh
+    entity id and the sequence number as source info, so a subscriber can tell publishers apart."""
 
     def __init__(self, session: zenoh.Session, key: str) -> None:
         self._pub = session.declare_publisher(key, express=True)
@@ -53,7 +54,7 @@ class PosePublisher:
         self._seq += 1
         sample = PoseSample(self._seq, stamp, np.asarray(position, float), np.asarray(rotation, float))
         payload, attachment = encode(sample)
-        self._pub.put(payload, attachment=attachment)
+        self._pub.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(self._pub.id, self._seq))
         return sample
 
     def close(self) -> None:
@@ -66,16 +67,35 @@ class SubscriberSettings:
     """A pose implying a faster move than this from the last accepted one is rejected as an outlier, m/s."""
     velocity_cutoff_hz: float = 8.0
     """First-order low-pass on the finite-difference velocities, Hz."""
+    position_gate: float = 0.03
+    """A pose farther than this from where the last accepted pose and the velocity put it is rejected, m (plus
+    5 m/s^2 of unmodelled acceleration over the gap): a 100 Hz mocap moves ~0.5 mm off that prediction."""
+    attitude_gate_deg: float = 5.0
+    """A pose rotated more than this (plus 20 deg/s over the gap) from where the modules' gyros turned the last
+    accepted one is rejected, deg."""
+    max_sequence_jump: int = 50
+    """A sample more than this far ahead in sequence is not trusted (until it starts a track, below)."""
+    resync_samples: int = 5
+    """Consecutive rejected samples consistent among themselves (sequence, stamps, speed) after which the estimate
+    follows them: the body reappearing elsewhere after an occlusion, a publisher's counter starting anew."""
 
 
 class PoseSubscriber:
-    """Keeps the newest pose of one body, rejects jumps, estimates linear and angular velocity.
+    """Keeps the newest pose of one body from one publisher, rejects what cannot be trusted, estimates velocity.
 
     Samples wait in a Zenoh ring buffer (the newest ``RING`` kept) and are decoded when the control loop asks for
     the state, on the caller's thread. A Python callback would run on Zenoh's thread and take the GIL away from
     the control loop at every sample; measured at 500 Hz that was the largest source of late periods. The cost is
-    that arrival is timed when the samples are polled, at most one control period late. Lost samples show up as
-    gaps in the publisher's sequence numbers (:attr:`missed`).
+    that arrival is timed when the samples are polled, at most one control period late.
+
+    Integrity. The first publisher heard is the body's source (its Zenoh entity id, in the samples' source info);
+    a sample from any other is counted (:attr:`foreign`) and never used, and :meth:`fault` names it. A sample
+    that repeats or goes back in sequence or time, jumps more than ``max_sequence_jump`` ahead, moves faster than
+    ``max_speed``, or lands outside the position or attitude gate (the attitude predicted with the body rate from
+    the modules' gyros, :meth:`set_body_rate`) is rejected without moving the estimate, so one forged sample
+    cannot lock the stream out. Rejected samples that form a consistent track of their own for
+    ``resync_samples`` samples are taken (:attr:`resyncs`). Lost samples show up as gaps in the sequence
+    (:attr:`missed`).
     """
 
     RING = 64
@@ -84,20 +104,35 @@ class PoseSubscriber:
     def __init__(self, session: zenoh.Session, key: str, settings: SubscriberSettings | None = None,
                  clock=time.monotonic) -> None:
         self.settings = settings or SubscriberSettings()
+        self.key = key
         self._clock = clock
         self._lock = threading.Lock()
         self._last: PoseSample | None = None
         self._received_at = 0.0
         self._velocity = np.zeros(3)
         self._omega = np.zeros(3)
+        self._body_rate: np.ndarray | None = None
+        self._source: str | None = None
+        self._track: list[PoseSample] = []
+        """Rejected samples consistent among themselves (a candidate for resynchronisation)."""
         self.rejected = 0
         self.received = 0
         self.accepted = 0
         """Samples the estimate used."""
         self.malformed = 0
         self.missed = 0
+        self.foreign = 0
+        """Samples from a publisher other than the source."""
+        self.foreign_sources: set[str] = set()
+        self.resyncs = 0
+        self.last_rejection = ""
+        """Why the newest rejected sample was rejected."""
         self._raw: list[tuple[float, bytes, float]] = []
         self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(self.RING))
+
+    def set_body_rate(self, omega: np.ndarray | None) -> None:
+        """The body rate from the modules' gyros (rad/s, body frame), for the attitude gate (None: no gate)."""
+        self._body_rate = None if omega is None or np.asarray(omega).size != 3 else np.asarray(omega, float)
 
     def poll(self) -> int:
         """Take every buffered sample in arrival order; returns how many arrived since the last poll."""
@@ -108,6 +143,37 @@ class PoseSubscriber:
                 self._accept(sample, self._clock())
         return n
 
+    def _why_not(self, pose: PoseSample, last: PoseSample, velocity: np.ndarray) -> str:
+        """Why ``pose`` does not follow ``last`` (moving at ``velocity``); "" if it does."""
+        s = self.settings
+        ahead = pose.sequence - last.sequence
+        if ahead <= 0:
+            return f"sequence {pose.sequence} not after {last.sequence}"
+        if ahead > s.max_sequence_jump:
+            return f"sequence jumps {ahead} ahead"
+        dt = pose.stamp - last.stamp
+        if dt <= 0:
+            return "stamp not after the last one"
+        step = float(np.linalg.norm(pose.position - last.position))
+        if step > s.max_speed * dt + 0.005:
+            return f"moves {step:.2f} m in {dt * 1e3:.0f} ms"
+        miss = float(np.linalg.norm(pose.position - last.position - velocity * dt))
+        if miss > s.position_gate + 5.0 * dt * dt:
+            return f"position {miss * 100:.1f} cm off the prediction"
+        if self._body_rate is not None:
+            predicted = last.rotation @ rotvec_to_matrix(self._body_rate * dt)
+            off = float(np.degrees(rotation_angle(predicted, pose.rotation)))
+            if off > s.attitude_gate_deg + 20.0 * dt:
+                return f"attitude {off:.1f} deg off the gyros' prediction"
+        return ""
+
+    def _continues(self, prev: PoseSample, pose: PoseSample) -> bool:
+        """``pose`` could follow ``prev`` on one publisher's track (sequence, stamps and speed; no gates)."""
+        s = self.settings
+        dt = pose.stamp - prev.stamp
+        return (0 < pose.sequence - prev.sequence <= s.max_sequence_jump and dt > 0
+                and float(np.linalg.norm(pose.position - prev.position)) <= s.max_speed * dt + 0.005)
+
     def _accept(self, sample: zenoh.Sample, now: float) -> None:
         payload = sample.payload.to_bytes()
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
@@ -116,24 +182,54 @@ class PoseSubscriber:
         except ValueError:
             self.malformed += 1
             return
+        info = sample.source_info
+        source = str(info.source_id) if info is not None else "unidentified"
+        if self._source is None:
+            self._source = source
+        elif source != self._source:
+            self.foreign += 1
+            self.foreign_sources.add(source)
+            return
         self.received += 1
         self._raw.append((now, payload, pose.stamp))
         last = self._last
         if last is not None:
-            if pose.sequence <= last.sequence:
-                return  # repeated or out of order
+            why = self._why_not(pose, last, self._velocity)
+            if why:
+                self.rejected += 1
+                self.last_rejection = why
+                track = self._track
+                if track and not self._continues(track[-1], pose):
+                    track.clear()
+                track.append(pose)
+                if len(track) < self.settings.resync_samples:
+                    return
+                self.resyncs += 1  # a consistent new track: follow it, with the velocity it shows
+                first = track[0]
+                self._velocity = (pose.position - first.position) / max(pose.stamp - first.stamp, 1e-6)
+                self._omega = np.zeros(3)
+                track.clear()
+                self._take(pose, now)
+                return
+            self._track.clear()
             self.missed += pose.sequence - last.sequence - 1
             dt = pose.stamp - last.stamp
-            step = float(np.linalg.norm(pose.position - last.position))
-            if dt <= 0 or step > self.settings.max_speed * dt + 0.005:
-                self.rejected += 1
-                return
             a = 1.0 - np.exp(-2 * np.pi * self.settings.velocity_cutoff_hz * dt)
             self._velocity += a * ((pose.position - last.position) / dt - self._velocity)
             self._omega += a * (matrix_to_rotvec(last.rotation.T @ pose.rotation) / dt - self._omega)
+        self._take(pose, now)
+
+    def _take(self, pose: PoseSample, now: float) -> None:
         self._last = pose
         self._received_at = now
         self.accepted += 1
+
+    def fault(self) -> str:
+        """Why the stream cannot be trusted ("" while it can): another publisher on the body's key."""
+        if self.foreign:
+            return (f"a second publisher on {self.key} ({self.foreign} samples from "
+                    f"{len(self.foreign_sources)} other source{'s' if len(self.foreign_sources) > 1 else ''})")
+        return ""
 
     def state(self) -> RigidState | None:
         """Newest accepted pose with filtered velocities (angular: body frame), or None before the first."""
@@ -166,7 +262,7 @@ class PoseSubscriber:
 
     def drain_raw(self) -> list[tuple[float, bytes, float]]:
         """(arrival (poll) time on this clock, payload as received, the publisher's stamp) since the last call, for
-        logging."""
+        logging (samples of the body's source only)."""
         self.poll()
         with self._lock:
             out, self._raw = self._raw, []

@@ -254,6 +254,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
           "mocap_rejected": mocap.get("rejected", 0), "mocap_malformed": mocap.get("malformed", 0),
           "mocap_missed": mocap.get("missed", 0), "duration_s": duration,
           "phase": summary.get("phase", timeline[-1][1] if timeline else ""), "reason": summary.get("reason", ""),
+          "stalls": sum("loop stalled" in text for _, _, text in events),
           "events": [{"t": t, "level": level, "text": text} for t, level, text in events]}
     m |= modules.result()
     rows = series.rows

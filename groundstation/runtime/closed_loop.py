@@ -69,15 +69,47 @@ def hover_check(model: ControlModel, plan: FlightPlan) -> None:
                              f"{np.linalg.norm(weight):.2f} N)")
 
 
+THRUST_SHARE = 0.8
+"""Of the assembly's collective thrust, the share the reference may ask for (the rest stays for attitude)."""
+MAX_TILT_DEG = 45.0
+"""Largest tilt the reference's accelerations may ask of an assembly that tilts to accelerate sideways, deg."""
+SPEED_SHARE = 0.8
+"""Of the mocap's outlier speed (``mocap.max_speed``), the share the reference may fly at: faster genuine poses
+would be rejected as jumps."""
+
+
 def volume_check(plan: FlightPlan, volume: FlightVolume) -> None:
-    ts = np.arange(0.0, plan.duration, 0.01)
-    pts = np.array([plan(t).position for t in ts])
+    """The whole plan stays in ``volume``: from its analytic bounds (no sampling, so any duration is cheap)."""
+    b = plan.bounds()
     lo, hi = np.array(volume.lower), np.array(volume.upper)
-    bad = np.any((pts < lo - 1e-9) | (pts > hi + 1e-9), axis=1)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise PreflightError(f"the trajectory leaves the flight volume at t = {ts[k]:.2f} s: "
-                             f"{np.round(pts[k], 3).tolist()} outside {list(volume.lower)}..{list(volume.upper)}")
+    outside = (np.array(b.lower) < lo - 1e-9) | (np.array(b.upper) > hi + 1e-9)
+    if outside.any():
+        axes = ", ".join("xyz"[k] for k in np.flatnonzero(outside))
+        raise PreflightError(f"the trajectory leaves the flight volume along {axes}: it spans "
+                             f"{np.round(b.lower, 3).tolist()}..{np.round(b.upper, 3).tolist()}, the volume is "
+                             f"{list(volume.lower)}..{list(volume.upper)} (the geofence less 0.2 m)")
+
+
+def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float) -> None:
+    """The plan's speed and acceleration, from its analytic bounds, within what the mocap gate and the assembly
+    allow: speed below ``SPEED_SHARE`` of ``max_speed``; collective thrust for gravity plus the largest
+    acceleration below ``THRUST_SHARE`` of the assembly's; the tilt that acceleration asks below ``MAX_TILT_DEG``.
+    """
+    b = plan.bounds()
+    issues = []
+    if b.speed > SPEED_SHARE * max_speed:
+        issues.append(f"it needs {b.speed:.3g} m/s, above {SPEED_SHARE:g} x mocap.max_speed = "
+                      f"{SPEED_SHARE * max_speed:g} m/s (faster poses are rejected as jumps)")
+    thrust = float(model.allocation[:3].sum(axis=1) @ np.array([0.0, 0.0, 1.0])) * model.u_max
+    need = model.mass * (GRAVITY + b.accel)
+    if need > THRUST_SHARE * thrust:
+        issues.append(f"it accelerates up to {b.accel:.3g} m/s^2: {need:.3g} N of thrust, above "
+                      f"{THRUST_SHARE:g} x the assembly's {thrust:.3g} N")
+    tilt = np.degrees(np.arctan2(b.accel, GRAVITY))
+    if tilt > MAX_TILT_DEG:
+        issues.append(f"its {b.accel:.3g} m/s^2 asks for {tilt:.0f} deg of tilt, above {MAX_TILT_DEG:g} deg")
+    if issues:
+        raise PreflightError("the trajectory is beyond the assembly: " + "; ".join(issues))
 
 
 def fly_simulated(assembly: Assembly, plan: FlightPlan, backend, gains: Gains | None = None,
@@ -89,6 +121,7 @@ def fly_simulated(assembly: Assembly, plan: FlightPlan, backend, gains: Gains | 
     model = ControlModel.from_assembly(assembly)
     hover_check(model, plan)
     volume_check(plan, volume or FlightVolume())
+    dynamics_check(model, plan, max_speed=np.inf)
     report = backend.preflight()
     if not report.ok:
         raise PreflightError("backend preflight failed: " + "; ".join(report.issues))
@@ -105,7 +138,7 @@ def flight_summary(flight: Flight, wall_s: float, planned_s: float, stats: LoopS
     metrics = flight.metrics.result()
     sim_s = metrics["simulated_s"]
     metrics |= {"realtime_factor": sim_s / wall_s if wall_s > 0 else float("inf"), "planned_s": planned_s,
-                "crashed": flight.phase == "emergency"}
+                "crashed": flight.phase == "emergency", "stalls": flight.stalls}
     if stats is not None:
         metrics["loop"] = stats.summary()
     return metrics

@@ -51,6 +51,23 @@ RATE_WINDOW_S = 1.0
 class PoseSource(Protocol):
     def state(self) -> RigidState | None: ...
     def age(self) -> float: ...
+    def set_body_rate(self, omega: np.ndarray | None) -> None: ...
+    def fault(self) -> str: ...
+    def integrity(self) -> MocapIntegrity: ...
+
+
+@dataclass(frozen=True)
+class MocapIntegrity:
+    """Counters of the pose stream since the start."""
+
+    rejected: int = 0
+    """Samples of the body's source the estimate did not use (out of sequence, jumps, outside the gates)."""
+    malformed: int = 0
+    """Samples that did not decode."""
+    foreign: int = 0
+    """Samples from a publisher other than the body's source."""
+    why: str = ""
+    """Why the newest rejected sample was rejected."""
 
 
 class PhysicsPoseSource:
@@ -65,12 +82,23 @@ class PhysicsPoseSource:
     def age(self) -> float:
         return self._backend.config.latency
 
+    def set_body_rate(self, omega: np.ndarray | None) -> None:
+        pass
+
+    def fault(self) -> str:
+        return ""
+
+    def integrity(self) -> MocapIntegrity:
+        return MocapIntegrity()
+
 
 @dataclass(frozen=True)
 class FailsafePolicy:
     mocap_timeout_s: float = 0.25
     """A pose older than this is stale, s."""
     on_mocap_stale: Literal["land", "stop"] = "land"
+    on_mocap_fault: Literal["land", "stop"] = "land"
+    """A second publisher on the body's key: its samples are never used, so the flight can land on the source's."""
     max_tilt_deg: float = 75.0
     """Angle between body z and world z beyond which the motors stop, deg."""
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
@@ -86,6 +114,12 @@ class FailsafePolicy:
     max_link_loss: float = 0.1
     """A module that does not accept this fraction of commands (lost or reordered) degrades the link."""
     on_link_degraded: Literal["land", "stop"] = "land"
+    max_stall_s: float = 0.1
+    """A gap between control periods longer than this stops the motors: real modules have stopped theirs by then
+    (the Crazyflie app after 100 ms without a command, PX4 after COM_OF_LOSS_T), s. Shorter stalls of more than
+    five periods are logged as warnings."""
+    on_log_failure: Literal["land", "continue"] = "land"
+    """The log writer failed (a full disk): land, or fly on unlogged."""
 
 
 @dataclass
@@ -113,6 +147,8 @@ class Status:
     """Late periods so far."""
     rate_hz: float | None = None
     """Loop rate measured over the last second, Hz (None during the first second)."""
+    mocap: MocapIntegrity = MocapIntegrity()
+    """The pose stream's counters."""
 
 
 @dataclass
@@ -163,6 +199,11 @@ class Flight:
         self.periods = 0
         """Control periods flown (the ones that computed a command)."""
         self._landing: tuple[float, Ramp] | None = None
+        self._t_prev: float | None = None
+        self._stall_warn = 0.02
+        """A gap between periods beyond this is a stall worth a warning, s (five periods)."""
+        self.stalls = 0
+        self._log_failure_seen = False
         self._last_u = np.zeros(4 * assembly.n)
         offset = time.time() - time.monotonic()
         self._to_log = to_log_time or (lambda mono: mono + offset)
@@ -204,8 +245,25 @@ class Flight:
         self._set_phase(t, "landing", why)
 
     # -- one period -----------------------------------------------------------------------------------------------
+    def _stalled(self, t: float) -> bool:
+        """Name a stall of the loop (the gap since the previous period); True if it is too long to fly on."""
+        gap = t - self._t_prev if self._t_prev is not None else 0.0
+        self._t_prev = t
+        if gap <= self._stall_warn:
+            return False
+        self.stalls += 1
+        sim = " (the simulator ran on open-loop over it)" if self.truth is not None else ""
+        if gap > self.policy.max_stall_s:
+            self._emergency(t, f"loop stalled {gap * 1e3:.0f} ms > {self.policy.max_stall_s * 1e3:g} ms: the "
+                               f"modules have stopped their motors by now{sim}")
+            return True
+        self._event(t, "warning", f"loop stalled {gap * 1e3:.0f} ms{sim}")
+        return False
+
     def step(self, k: int, t: float) -> bool:
         if self.phase in ("done", "emergency", "aborted"):
+            return False
+        if self._stalled(t):
             return False
         if self.before_period is not None:
             self.before_period(t)
@@ -214,8 +272,9 @@ class Flight:
         if self.requests.stop.is_set():
             self._emergency(t, "operator stop")
             return False
-        state, age = self.pose.state(), self.pose.age()
         telemetry = self.backend.telemetry()
+        self.pose.set_body_rate(telemetry.gyro if telemetry.gyro.size == 3 else None)  # the mocap attitude gate
+        state, age = self.pose.state(), self.pose.age()
         if not telemetry.link_ok:
             self._emergency(t, "backend link lost")
             return False
@@ -226,8 +285,19 @@ class Flight:
                 return False
             if self.phase != "landing" and self.phase in AIRBORNE and state is not None:
                 self._begin_landing(t, state.position, degraded)
+        fault = self.pose.fault()
+        if fault:
+            why = f"mocap fault: {fault}"
+            if self.policy.on_mocap_fault == "stop" or state is None:
+                self._emergency(t, why)
+                return False
+            if self.phase != "landing" and self.phase in AIRBORNE:
+                self._begin_landing(t, state.position, why)
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
+            integrity = self.pose.integrity()
+            if integrity.rejected:
+                why += f"; {integrity.rejected} samples rejected, last: {integrity.why}"
             if self.policy.on_mocap_stale == "stop" or state is None:
                 self._emergency(t, why)
                 return False
@@ -246,6 +316,12 @@ class Flight:
             return False
         if self.requests.land.is_set() and self.phase in AIRBORNE:
             self._begin_landing(t, self.plan(t).position, "operator land")
+        if self.log is not None and self.log.error is not None and not self._log_failure_seen:
+            self._log_failure_seen = True
+            why = f"log writer failed: {self.log.error}"
+            self.events.append((t, "error", why))
+            if self.policy.on_log_failure == "land" and self.phase in AIRBORNE:
+                self._begin_landing(t, state.position, why)
         if self._landing is not None:
             t_land, ramp = self._landing
             sp = ramp(t - t_land)
@@ -352,7 +428,7 @@ class Flight:
             if t - t_w >= RATE_WINDOW_S:  # periods actually run, not the configured rate
                 self._rate_hz, self._rate_window = (self.periods - n_w) / (t - t_w), (t, self.periods)
             self.on_status(Status(t, self.phase, age, float(u.max() / self.model.u_max), battery,
-                                  st.overruns if st is not None else 0, self._rate_hz))
+                                  st.overruns if st is not None else 0, self._rate_hz, self.pose.integrity()))
 
     # -- run --------------------------------------------------------------------------------------------------------
     def run(self, clock: Clock, rate_hz: float, realtime: bool = False) -> LoopStats:
@@ -360,6 +436,7 @@ class Flight:
 
         ``realtime`` only records that the caller runs this thread under real-time scheduling."""
         self._stats = LoopStats(1.0 / rate_hz, realtime=realtime)
+        self._stall_warn = 5.0 / rate_hz
         step = self.step
         activity = self.activity
         if activity is not None:

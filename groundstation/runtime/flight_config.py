@@ -8,15 +8,42 @@ pymavlink connection per PX4 module: serial, UDP, or ``groundstation sim-peer --
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Literal
 
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, ValidationInfo, field_validator, model_validator
 from pydantic.dataclasses import dataclass
 
 from groundstation import config
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+MAX_DURATION_S = 3600.0
+
+
+_PORT = r"(\d{1,5})"
+_CRAZYFLIE_LINK = re.compile(r"^(radio://\w+(/\d+(/(250K|1M|2M)(/[0-9A-Fa-f]{1,10})?)?)?(\?.*)?"
+                             r"|udp://[\w.\-]+:" + _PORT + r"|usb://\d+|serial://\S+|tcp://[\w.\-]+:" + _PORT + r")$")
+_MAVLINK_LINK = re.compile(r"^((udpin|udpout|udp|udpbcast|tcp|tcpin):[\w.\-]+:" + _PORT + r"|/dev/\S+|COM\d+(,\d+)?)$")
+
+
+def link_problem(kind: str, link: str) -> str:
+    """What is wrong with a module link of a ``kind`` backend ("" if nothing): its form, and the port range."""
+    pattern = _CRAZYFLIE_LINK if kind == "crazyflie" else _MAVLINK_LINK if kind == "mavlink" else None
+    if pattern is None:
+        return ""
+    m = pattern.match(link)
+    if m is None:
+        example = ("radio://0/80/2M/E7E7E7E701 or udp://127.0.0.1:19850" if kind == "crazyflie" else
+                   "udpout:127.0.0.1:14560, udpin:0.0.0.0:14550 or /dev/ttyACM0,921600")
+        return f"{link!r} is not a {kind} link (like {example})"
+    ports = [int(g) for g in re.findall(r":(\d{1,5})(?:$|\?)", link)]
+    if kind == "crazyflie" and link.startswith("radio://"):
+        parts = link.split("?")[0].removeprefix("radio://").split("/")
+        if len(parts) > 1 and not 0 <= int(parts[1]) <= 125:
+            return f"{link!r}: radio channel {parts[1]} is not in 0..125"
+    bad = [p for p in ports if not 1 <= p <= 65535]
+    return f"{link!r}: port {bad[0]} is not in 1..65535" if bad else ""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -48,6 +75,15 @@ class BackendSection:
     """crazyflie, mavlink: a parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/
     module_params.toml``; relative to this config) that preflight checks on every module before arming."""
 
+    @field_validator("modules")
+    @classmethod
+    def _links(cls, links: tuple[str, ...], info: ValidationInfo) -> tuple[str, ...]:
+        for link in links:
+            problem = link_problem(info.data.get("kind", "sim"), link)
+            if problem:
+                raise ValueError(problem)
+        return links
+
     @model_validator(mode="after")
     def _consistent(self) -> BackendSection:
         if self.pwm_max <= self.pwm_min:
@@ -67,13 +103,13 @@ class MocapSection:
     listen: bool = False
     """The ground station listens on the endpoint (True) or connects to it (False, the default: the mocap
     bridge or the simulator listens)."""
-    rate_hz: float = Field(100.0, gt=0)
-    """Simulated mocap only: publish rate, Hz."""
+    rate_hz: float = Field(100.0, gt=0, le=1000)
+    """Simulated mocap only: publish rate, Hz (camera systems run at 100-360 Hz; above 1 kHz is a typo)."""
     position_noise: float = Field(0.0005, ge=0)
     """Simulated mocap only: position noise std, m."""
     attitude_noise_deg: float = Field(0.1, ge=0)
     """Simulated mocap only: attitude noise std, deg."""
-    latency_s: float = Field(0.005, ge=0)
+    latency_s: float = Field(0.005, ge=0, le=1.0)
     """Simulated mocap only: latency, s."""
     max_speed: float = Field(10.0, gt=0)
     """Poses implying faster motion than this are rejected as outliers, m/s."""
@@ -83,13 +119,13 @@ class MocapSection:
 class TrajectorySection:
     kind: Literal["hover", "circle", "figure8"] = "figure8"
     size: float = Field(0.6, gt=0)
-    """Figure-8 l0 or circle radius, m."""
+    """Figure-8 l0 or circle radius, m (the geofence bounds it)."""
     period: float = Field(8.0, gt=0)
-    """Figure-8 t_c or circle period, s."""
+    """Figure-8 t_c or circle period, s (preflight bounds the speed and acceleration it asks)."""
     height: float = Field(1.0, gt=0)
     """h0, m."""
-    duration: float = Field(16.0, gt=0)
-    """Tracking time, s."""
+    duration: float = Field(16.0, gt=0, le=MAX_DURATION_S)
+    """Tracking time, s (at most an hour: no battery lasts longer)."""
     roll_deg: float = 0.0
     takeoff_s: float = Field(3.0, gt=0)
     landing_s: float = Field(3.0, gt=0)
@@ -107,6 +143,8 @@ class GainsSection:
 class FailsafeSection:
     mocap_timeout_s: float = Field(0.25, gt=0)
     on_mocap_stale: Literal["land", "stop"] = "land"
+    on_mocap_fault: Literal["land", "stop"] = "land"
+    """A second publisher on the body's key (its samples are never used)."""
     max_tilt_deg: float = Field(75.0, gt=0, le=180)
     geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
     geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
@@ -117,6 +155,10 @@ class FailsafeSection:
     max_link_loss: float = Field(0.1, gt=0, le=1)
     """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded."""
     on_link_degraded: Literal["land", "stop"] = "land"
+    max_stall_s: float = Field(0.1, gt=0)
+    """A gap between control periods beyond this stops the motors (the modules have stopped theirs), s."""
+    on_log_failure: Literal["land", "continue"] = "land"
+    """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
 
 
 @dataclass(frozen=True, config=_STRICT)

@@ -14,6 +14,7 @@ every other path sends the emergency stop.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import subprocess
@@ -28,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
-from groundstation import __version__
+from groundstation import __version__, config
 from groundstation.assembly.assembly_file import assembly_record, load_assembly
 from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
 from groundstation.backends.mavlink import MavlinkBackend, MavlinkSettings
@@ -41,9 +42,16 @@ from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog
 from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session, pose_key
-from groundstation.runtime.closed_loop import FlightVolume, PreflightError, flight_summary, hover_check, volume_check
-from groundstation.runtime.flight import FailsafePolicy, Flight, Requests
-from groundstation.runtime.flight_config import FlightConfig, load_flight_config
+from groundstation.runtime.closed_loop import (
+    FlightVolume,
+    PreflightError,
+    dynamics_check,
+    flight_summary,
+    hover_check,
+    volume_check,
+)
+from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, Requests
+from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopActivity, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
@@ -110,7 +118,8 @@ class _LoggedPose:
             rate = (sub.accepted - accepted) / (now - last) if np.isfinite(last) else float("nan")
             self._log.record("/mocap/stats", {"received": sub.received, "accepted": sub.accepted,
                                               "rejected": sub.rejected, "malformed": sub.malformed,
-                                              "missed": sub.missed, "rate_hz": rate}, self._to_log(now))
+                                              "missed": sub.missed, "foreign": sub.foreign,
+                                              "resyncs": sub.resyncs, "rate_hz": rate}, self._to_log(now))
             self._stats_at = (now, sub.accepted)
         s = self._sub.state()
         if s is not None and self._faults.corrupt_pose:
@@ -119,6 +128,16 @@ class _LoggedPose:
 
     def age(self) -> float:
         return self._sub.age()
+
+    def set_body_rate(self, omega) -> None:
+        self._sub.set_body_rate(omega)
+
+    def fault(self) -> str:
+        return self._sub.fault()
+
+    def integrity(self) -> MocapIntegrity:
+        sub = self._sub
+        return MocapIntegrity(sub.rejected, sub.malformed, sub.foreign, sub.last_rejection)
 
 
 def code_version() -> str:
@@ -171,9 +190,11 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     cfg, base = load_flight_config(config_path)
     src = str(config_path)
     if duration is not None:
-        if not duration > 0:
-            raise ConfigError(f"duration must be positive, got {duration}")
-        cfg = FlightConfig(**{**asdict(cfg), "trajectory": {**asdict(cfg.trajectory), "duration": duration}})
+        try:
+            track = config.validate(TrajectorySection, {**asdict(cfg.trajectory), "duration": duration})
+        except ConfigError as exc:
+            raise ConfigError(str(exc).split(": ", 1)[-1], path=src, key="--duration") from None
+        cfg = dataclasses.replace(cfg, trajectory=track)
     try:
         assembly, _ = load_assembly(base / cfg.assembly)
     except ConfigError as exc:
@@ -204,7 +225,11 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     model = ControlModel.from_assembly(assembly)
     volume = FlightVolume(tuple(np.array(policy.geofence_lower) + 0.2), tuple(np.array(policy.geofence_upper) - 0.2))
     hover_check(model, plan)
-    volume_check(plan, volume)
+    try:
+        volume_check(plan, volume)
+        dynamics_check(model, plan, cfg.mocap.max_speed)
+    except PreflightError as exc:  # bad input: the trajectory section asks for what cannot be flown
+        raise ConfigError(str(exc), path=src, key="trajectory") from None
 
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     activity = activity or LoopActivity()
