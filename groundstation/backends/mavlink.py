@@ -12,6 +12,11 @@ every module to offboard and arms it, and fails (motors commanded off) unless ev
 :meth:`emergency_stop` force-disarms and terminates every module; a module silent for ``link_timeout``, or one
 that disarmed on its own while the flight needs it (offboard loss, a failsafe), makes ``link_ok`` False, and the
 flight stops. On the vehicle, offboard loss after ``COM_OF_LOSS_T`` stops the motors if the ground station dies.
+
+Every ``COMMAND_LONG`` is repeated every ``RETRY_S`` until the module acknowledges it (a radio or UDP link may
+lose either): mode switch and arming within ``arm_timeout``; the emergency stop (and a normal disarm) on every
+later ``send``/``telemetry`` call until confirmed or the module is lost, and for ``STOP_CONFIRM_S`` more when the
+backend closes.
 """
 
 from __future__ import annotations
@@ -45,7 +50,7 @@ class MavlinkSettings:
     """Preflight: lowest acceptable battery voltage, V (as the vehicle reports it)."""
     preflight_timeout: float = 2.0
     """Preflight: how long to wait for every module's heartbeat and telemetry, s."""
-    arm_timeout: float = 1.0
+    arm_timeout: float = 2.0
     """How long :meth:`MavlinkBackend.arm` waits for every module to confirm offboard and armed, s."""
     telemetry_hz: float = 100.0
     """Rate requested for ATTITUDE (gyro) and SERVO_OUTPUT_RAW (applied motors), Hz."""
@@ -59,6 +64,10 @@ HEARTBEAT_S = 1.0
 """Ground-station heartbeat interval, s (PX4's data-link loss check listens for it)."""
 ARM_GRACE_S = 1.0
 """A disarmed heartbeat this soon after a module acknowledged arming is stale (one PX4 heartbeat interval), s."""
+RETRY_S = 0.1
+"""Interval between repeats of an unacknowledged command, s."""
+STOP_CONFIRM_S = 0.5
+"""How long closing the backend repeats an unconfirmed stop or disarm, s."""
 SETPOINT_LEAD_S = 1.0
 """Zero setpoints streamed before the switch to offboard, s: PX4 refuses offboard without a setpoint stream, and
 its documentation (v1.14 on) asks for more than 1 s of it before arming in offboard."""
@@ -82,6 +91,9 @@ class _Module:
         self.stop_acked = False
         self.arm_wanted = False
         """The last arm/disarm command asked to arm (its ACK then means armed)."""
+        self.pending: list[tuple[int, tuple[float, ...]]] = []
+        """Commands to repeat until acknowledged: (command, params) (the stop or a normal disarm)."""
+        self.pending_sent = -np.inf
 
 
 class MavlinkBackend:
@@ -165,22 +177,21 @@ class MavlinkBackend:
             self._drain()
         for m in self._modules:
             m.acks.clear()
-            self._command(m, mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                          mw.PX4_MAIN_MODE_OFFBOARD)
-        self._await(mav.MAV_CMD_DO_SET_MODE, "switch to offboard")
-        for m in self._modules:
             m.arm_wanted = True
-            self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-        self._await(mav.MAV_CMD_COMPONENT_ARM_DISARM, "arm")
+        self._await(mav.MAV_CMD_DO_SET_MODE, "switch to offboard", mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                    mw.PX4_MAIN_MODE_OFFBOARD)
+        self._await(mav.MAV_CMD_COMPONENT_ARM_DISARM, "arm", 1.0)
         self._armed = True
 
     def send(self, u: np.ndarray) -> None:
         """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; zero unless armed."""
         self._send_controls(applied_command(u, self._applied.size, self._armed, self.u_max))
         self._heartbeat()
+        self._repeat_pending()
 
     def telemetry(self) -> Telemetry:
         self._drain()
+        self._repeat_pending()
         now = self._clock()
         fresh = all(now - m.heard <= self.settings.link_timeout for m in self._modules)
         # A module that disarmed itself (offboard loss, a failsafe) no longer flies: the flight must stop.
@@ -197,7 +208,8 @@ class MavlinkBackend:
         self._send_controls(np.zeros_like(self._applied))
         for m in self._modules:
             m.arm_wanted = False
-            self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
+            m.acks.pop(mav.MAV_CMD_COMPONENT_ARM_DISARM, None)
+            self._until_acked(m, [(mav.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,))])
 
     def emergency_stop(self) -> None:
         """Force-disarm and terminate every module, and command zero, at once (no waiting for answers)."""
@@ -206,15 +218,26 @@ class MavlinkBackend:
         for m in self._modules:
             m.stop_acked = False
             m.arm_wanted = False
-            self._command(m, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, mw.FORCE_DISARM)
-            self._command(m, mav.MAV_CMD_DO_FLIGHTTERMINATION, 1.0)
+            for c in (mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_CMD_DO_FLIGHTTERMINATION):
+                m.acks.pop(c, None)
+            self._until_acked(m, [(mav.MAV_CMD_COMPONENT_ARM_DISARM, (0.0, mw.FORCE_DISARM)),
+                                  (mav.MAV_CMD_DO_FLIGHTTERMINATION, (1.0,))])
         self._send_controls(np.zeros_like(self._applied))
         self._applied[:] = 0.0
 
     def close(self) -> None:
+        deadline = self._clock() + STOP_CONFIRM_S
+        while any(m.pending for m in self._modules) and self._clock() < deadline:
+            time.sleep(0.01)
+            self._drain()
+            self._repeat_pending()
         for m in self._modules:
             m.conn.close()
         self._modules = []
+
+    def unconfirmed(self) -> list[int]:
+        """Modules that have not acknowledged the stop or disarm sent to them."""
+        return [i for i, m in enumerate(self._modules) if m.pending]
 
     def __enter__(self) -> MavlinkBackend:
         self.connect()
@@ -246,15 +269,41 @@ class MavlinkBackend:
         p = (list(params) + [0.0] * 7)[:7]
         m.conn.mav.command_long_send(m.system_id or 0, m.component_id, command, 0, *p)
 
+    def _until_acked(self, m: _Module, commands: list[tuple[int, tuple[float, ...]]]) -> None:
+        """Send ``commands`` now and repeat them until acknowledged (:meth:`_repeat_pending`)."""
+        m.pending = list(commands)
+        for command, params in commands:
+            self._command(m, command, *params)
+        m.pending_sent = self._clock()
+
+    def _repeat_pending(self) -> None:
+        now = self._clock()
+        for m in self._modules:
+            m.pending = [(c, p) for c, p in m.pending if c not in m.acks]
+            if not m.pending or now - m.pending_sent < RETRY_S:
+                continue
+            if now - m.heard > self.settings.link_timeout * 10:
+                continue  # lost: nothing gets through (the flight knows: link_ok is False)
+            for command, params in m.pending:
+                self._command(m, command, *params)
+            m.pending_sent = now
+
     def _request_streams(self, m: _Module) -> None:
         interval_us = 1e6 / self.settings.telemetry_hz
         for msg_id in (mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW):
             self._command(m, mav.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, interval_us)
 
-    def _await(self, command: int, what: str) -> None:
-        """Wait for every module's COMMAND_ACK of ``command`` (keeping setpoints and heartbeats flowing)."""
+    def _await(self, command: int, what: str, *params: float) -> None:
+        """Send ``command`` to every module and repeat it every ``RETRY_S`` to those that have not acknowledged,
+        until all have or ``arm_timeout`` passed (keeping setpoints and heartbeats flowing)."""
         deadline = self._clock() + self.settings.arm_timeout
+        sent = -np.inf
         while self._clock() < deadline and not all(command in m.acks for m in self._modules):
+            if self._clock() - sent >= RETRY_S:
+                for m in self._modules:
+                    if command not in m.acks:
+                        self._command(m, command, *params)
+                sent = self._clock()
             self._send_controls(np.zeros_like(self._applied))
             self._heartbeat()
             time.sleep(0.005)

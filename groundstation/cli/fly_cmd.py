@@ -148,14 +148,25 @@ def recover_command(src: str, dst: str) -> int:
 @click.option("--y-up", is_flag=True, help="Convert a y-up stream (OptiTrack default) to z-up.")
 @click.option("--mock-bodies", default="", help='Mock system bodies, e.g. "a(0,0,1,1,0,0,0)" (x,y,z,qw,qx,qy,qz).')
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+@click.option("--tls-ca", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="TLS: the lab CA (PEM); the endpoint is then tls/HOST:PORT.")
+@click.option("--tls-cert", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="TLS: this bridge's certificate (PEM), for mutual TLS.")
+@click.option("--tls-key", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="TLS: this bridge's private key (PEM).")
 def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key_prefix: str, y_up: bool,
-                         mock_bodies: str, duration: float | None) -> int:
+                         mock_bodies: str, duration: float | None, tls_ca: str | None, tls_cert: str | None,
+                         tls_key: str | None) -> int:
     """Publish motion-capture poses on Zenoh (foxglove.PoseInFrame on <prefix>/<body>/pose)."""
     from groundstation.mocap.bridge import run_bridge
+    from groundstation.mocap.zenoh_link import Security
 
+    if (tls_cert is None) != (tls_key is None):
+        raise UsageError("--tls-cert and --tls-key go together")
+    security = Security(tls_ca, tls_cert, tls_key, mutual=tls_cert is not None) if tls_ca else None
     names = [b.strip() for b in bodies.split(",") if b.strip()]
     stats = run_bridge(system, host, names, endpoint, key_prefix, y_up=y_up, mock_bodies=mock_bodies,
-                       duration=duration)
+                       duration=duration, security=security)
     click.echo(json.dumps({"frames": stats.frames, "published": stats.published, "missing": stats.missing}))
     return 0
 

@@ -25,13 +25,42 @@ class LinkError(GroundstationError):
     """A Zenoh session could not be opened (endpoint in use, malformed, unreachable)."""
 
 
-def open_session(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Session:
+@dataclass(frozen=True)
+class Security:
+    """TLS (with mutual authentication by default) and access control of a Zenoh session on a lab network.
+
+    Endpoints then use ``tls/HOST:PORT``. ``root_ca``: the CA that signed every peer's certificate;
+    ``certificate``/``private_key``: this peer's (PEM files), presented both when listening and when connecting;
+    ``mutual``: peers must present a certificate signed by ``root_ca``. ``access_control``: Zenoh's
+    ``access_control`` block (JSON5 text: rules, subjects, policies; e.g. only the mocap host may put on
+    ``mocap/**``)."""
+
+    root_ca: str | None = None
+    certificate: str | None = None
+    private_key: str | None = None
+    mutual: bool = True
+    access_control: str | None = None
+
+
+def open_session(listen: list[str] | None = None, connect: list[str] | None = None,
+                 security: Security | None = None) -> zenoh.Session:
     """A peer-mode session listening on and/or connecting to explicit endpoints, multicast scouting off."""
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("listen/endpoints", json.dumps(list(listen or [])))
     cfg.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
+    if security is not None:
+        tls = "transport/link/tls/"
+        if security.root_ca is not None:
+            cfg.insert_json5(tls + "root_ca_certificate", json.dumps(security.root_ca))
+            cfg.insert_json5(tls + "enable_mtls", json.dumps(security.mutual))
+        if security.certificate is not None:
+            for side in ("listen", "connect"):
+                cfg.insert_json5(f"{tls}{side}_certificate", json.dumps(security.certificate))
+                cfg.insert_json5(f"{tls}{side}_private_key", json.dumps(security.private_key))
+        if security.access_control is not None:
+            cfg.insert_json5("access_control", security.access_control)
     try:
         return zenoh.open(cfg)
     except Exception as exc:  # zenoh raises ZError carrying the transport's reason

@@ -94,6 +94,28 @@ class BackendSection:
 
 
 @dataclass(frozen=True, config=_STRICT)
+class TlsSection:
+    """Zenoh over TLS for a lab network (paths relative to the flight config; endpoints ``tls/HOST:PORT``)."""
+
+    root_ca: str
+    """PEM file of the CA that signed every peer's certificate."""
+    certificate: str | None = None
+    """This ground station's certificate (PEM); required with ``mutual``."""
+    private_key: str | None = None
+    """Its private key (PEM)."""
+    mutual: bool = True
+    """Mutual TLS: every peer (mocap bridge, simulator) must present a certificate signed by ``root_ca``."""
+
+    @model_validator(mode="after")
+    def _pair(self) -> TlsSection:
+        if (self.certificate is None) != (self.private_key is None):
+            raise ValueError("certificate and private_key go together")
+        if self.mutual and self.certificate is None:
+            raise ValueError("mutual TLS needs this peer's certificate and private_key")
+        return self
+
+
+@dataclass(frozen=True, config=_STRICT)
 class MocapSection:
     body: str = "assembly"
     """Rigid body name; the pose key is ``<key_prefix>/<body>/pose``."""
@@ -113,6 +135,16 @@ class MocapSection:
     """Simulated mocap only: latency, s."""
     max_speed: float = Field(10.0, gt=0)
     """Poses implying faster motion than this are rejected as outliers, m/s."""
+    tls: TlsSection | None = None
+    """TLS on the mocap link (default: none, loopback)."""
+    access_control: str | None = None
+    """A JSON5 file holding Zenoh's ``access_control`` block (relative to this config)."""
+
+    @model_validator(mode="after")
+    def _secure_endpoint(self) -> MocapSection:
+        if self.tls is not None and not self.endpoint.startswith("tls/"):
+            raise ValueError(f"with tls the endpoint must be tls/HOST:PORT, not {self.endpoint}")
+        return self
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -178,6 +210,31 @@ class FlightConfig:
     trajectory: TrajectorySection = TrajectorySection()
     gains: GainsSection = GainsSection()
     failsafe: FailsafeSection = FailsafeSection()
+
+
+def mocap_security(m: MocapSection, base: Path, src: str):
+    """The Zenoh security of the mocap link (None: plain), its files resolved against ``base``; a missing file
+    is a ConfigError naming the key."""
+    from groundstation.errors import ConfigError
+    from groundstation.mocap.zenoh_link import Security
+
+    def existing(value: str | None, key: str) -> str | None:
+        if value is None:
+            return None
+        p = (base / value).resolve()
+        if not p.is_file():
+            raise ConfigError(f"file not found: {p}", path=src, key=key)
+        return str(p)
+
+    if m.tls is None and m.access_control is None:
+        return None
+    acl_path = existing(m.access_control, "mocap.access_control")
+    t = m.tls
+    return Security(root_ca=existing(t.root_ca, "mocap.tls.root_ca") if t else None,
+                    certificate=existing(t.certificate, "mocap.tls.certificate") if t else None,
+                    private_key=existing(t.private_key, "mocap.tls.private_key") if t else None,
+                    mutual=t.mutual if t else True,
+                    access_control=Path(acl_path).read_text() if acl_path else None)
 
 
 def load_flight_config(path: str | Path) -> tuple[FlightConfig, Path]:

@@ -51,7 +51,7 @@ from groundstation.runtime.closed_loop import (
     volume_check,
 )
 from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, Requests
-from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config
+from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config, mocap_security
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopActivity, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
@@ -232,6 +232,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         raise ConfigError(str(exc), path=src, key="trajectory") from None
 
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
+    security = mocap_security(cfg.mocap, base, src)
     activity = activity or LoopActivity()
     ended_cleanly = [False]
     offset = time.time() - time.monotonic()
@@ -245,7 +246,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         if cfg.backend.kind == "sim":
             # The simulator plays the mocap system: it listens, the ground station connects (as with a bridge).
             ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
-            world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults, activity))
+            world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults, activity, security))
             backend = world.backend
             param_issues = []
         else:
@@ -260,7 +261,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             # Runs first on the way out: a flight that landed (or never armed) is disarmed already; anything else
             # (an exception, Ctrl-C in preflight) gets the emergency stop.
             stack.callback(lambda: None if ended_cleanly[0] else backend.emergency_stop())
-        gs_session = open_session(listen=ours, connect=theirs)
+        gs_session = open_session(listen=ours, connect=theirs, security=security)
         stack.callback(gs_session.close)
         sub = PoseSubscriber(gs_session, key, SubscriberSettings(max_speed=m.max_speed))
         stack.callback(sub.close)
@@ -281,6 +282,8 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         s = pose.state()
         report = backend.preflight()
         issues = list(report.issues) + param_issues
+        if sub.fault():
+            issues.append(f"mocap: {sub.fault()}")
         if s is None:
             issues.append(f"mocap does not see '{m.body}' on {key} via {m.endpoint}")
         else:
@@ -337,7 +340,7 @@ class _SimulatedWorld:
     """
 
     def __init__(self, assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults,
-                 activity: LoopActivity) -> None:
+                 activity: LoopActivity, security=None) -> None:
         from sim.pybullet_backend import PyBulletBackend, SimConfig
         from sim.virtual_mocap import VirtualMocap
 
@@ -345,7 +348,7 @@ class _SimulatedWorld:
         self.faults = faults
         self._stack = ExitStack()
         connect = [] if listen else [m.endpoint]
-        session = open_session(listen=listen, connect=connect)
+        session = open_session(listen=listen, connect=connect, security=security)
         self._stack.callback(session.close)
         publisher = PosePublisher(session, key)
         self._stack.callback(publisher.close)

@@ -1,0 +1,68 @@
+"""A hostile publisher on a body's mocap key, in a process of its own (fault injection for the fault table).
+
+    python -m tests.faults.hostile_mocap --connect tcp/127.0.0.1:7490 --key mocap/assembly/pose
+                                         --mode second|huge-seq|replay|drift|spoof|malformed [--after 5]
+                                         [--duration 10]
+
+Modes: ``second`` publishes a plausible pose of its own (0.3 m off) at 100 Hz; ``huge-seq`` one sample with a
+sequence number of 2^40, then goes quiet; ``replay`` re-sends old sequence numbers; ``drift`` a pose that drifts
+away from the flight path at 5 cm/s; ``spoof`` the hover pose 5 cm off with the attitude 20 deg off; ``malformed``
+payloads that do not decode. It connects to the ground station's Zenoh endpoint (the ground station listens:
+``mocap.listen = true``), waits ``--after`` seconds, then attacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from groundstation.mocap.codec import PoseSample, encode
+from groundstation.mocap.zenoh_link import PosePublisher, open_session
+from groundstation.rotations import rotvec_to_matrix
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--connect", required=True)
+    ap.add_argument("--key", default="mocap/assembly/pose")
+    ap.add_argument("--mode", required=True,
+                    choices=("second", "huge-seq", "replay", "drift", "spoof", "malformed"))
+    ap.add_argument("--after", type=float, default=5.0)
+    ap.add_argument("--duration", type=float, default=10.0)
+    a = ap.parse_args(argv)
+    session = open_session(connect=[a.connect])
+    try:
+        time.sleep(a.after)
+        pub = PosePublisher(session, a.key)
+        raw = session.declare_publisher(a.key)
+        end = time.monotonic() + a.duration
+        k = 0
+        while time.monotonic() < end:
+            k += 1
+            now = time.time()
+            if a.mode == "second":
+                pub.publish(np.array([0.3, 0.0, 1.0]), np.eye(3), now)
+            elif a.mode == "huge-seq":
+                payload, att = encode(PoseSample(2**40, now, np.array([0.0, 0.0, 1.0]), np.eye(3)))
+                raw.put(payload, attachment=att)
+                break
+            elif a.mode == "replay":
+                payload, att = encode(PoseSample(max(1, k % 50), now, np.array([0.0, 0.0, 1.0]), np.eye(3)))
+                raw.put(payload, attachment=att)
+            elif a.mode == "drift":
+                pub.publish(np.array([0.05 * k * 0.01, 0.0, 1.0]), np.eye(3), now)
+            elif a.mode == "spoof":
+                pub.publish(np.array([0.05, 0.0, 1.0]), rotvec_to_matrix(np.radians([20.0, 0.0, 0.0])), now)
+            else:
+                raw.put(b"\x00\xffnot a pose", attachment=b"short")
+            time.sleep(0.01)
+        time.sleep(0.5)
+    finally:
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
