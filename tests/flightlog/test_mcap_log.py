@@ -133,15 +133,19 @@ class _argv_exit:
         return False
 
 
-def test_writer_is_off_the_calling_thread(tmp_path):
+def test_writer_is_a_process_of_its_own(tmp_path):
+    """The flight process only queues: encoding and I/O happen in the writer process (its cost per record is the
+    loop benchmark's business)."""
     path = tmp_path / "b.mcap"
     log = FlightLog(path)
-    t0 = time.perf_counter()
+    assert log.writer_pid != os.getpid()
     for k in range(5000):
         log.pose("/p", np.zeros(3), np.eye(3), 1000.0 + k)
-    enqueue = (time.perf_counter() - t0) / 5000
     log.close()
-    assert enqueue < 200e-6  # building two small protobufs and a queue put; the encoding and I/O happen elsewhere
+    with open(path, "rb") as fh:
+        counts = {c.topic: n for c, n in ((c, make_reader(fh).get_summary().statistics.channel_message_counts[c.id])
+                                          for c in make_reader(fh).get_summary().channels.values())}
+    assert counts == {"/p": 5000, "/tf": 5000} and log.error is None
 
 
 def test_writer_failure_is_reported(tmp_path):
