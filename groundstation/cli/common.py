@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -36,3 +37,14 @@ def writable_output(path: str | Path, suffixes: tuple[str, ...] | None = None) -
     if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
         raise UsageError(f"{p}: not writable")
     return p
+
+
+def json_safe(x):
+    """``x`` with NaN and inf as null, so ``--json`` output is strict JSON (jq, JavaScript)."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [json_safe(v) for v in x]
+    return x

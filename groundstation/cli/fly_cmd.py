@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from groundstation.cli.common import stderr_console, writable_output
+from groundstation.cli.common import json_safe, stderr_console, writable_output
 from groundstation.errors import UsageError
 from groundstation.flightlog.mcap_log import recover
 from groundstation.runtime.flight import Requests
@@ -97,7 +97,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     m = result.metrics
     summary = {"phase": result.phase, "reason": result.reason, "log": str(result.log_path), **m}
     if as_json:
-        click.echo(json.dumps(summary))
+        click.echo(json.dumps(json_safe(summary)))
     else:
         table = Table(title=f"Flight {flight}", show_header=False)
         for k in ("phase", "reason", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
@@ -109,6 +109,11 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
                               f"{loop.get('start_error_ms_p99', 0):.3f} ms, {loop.get('overruns', 0)} overruns")
         Console().print(table)
     click.echo(f"log: {result.log_path}", err=True)
+    if result.log_error is not None:
+        click.echo(f"groundstation: the log writer failed: {result.log_error} (what was written reads with "
+                   f"groundstation replay, or log recover)", err=True)
+    if result.phase == "done" and result.reason in ("", "operator land") and result.log_error is not None:
+        return EXIT_EMERGENCY
     if not result.nominal:
         what = {"aborted": "did not start", "done": "landed early"}.get(result.phase, f"ended in {result.phase}")
         click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)

@@ -11,7 +11,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import progress_bar, stderr_console, writable_output
+from groundstation.cli.common import json_safe, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
 ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_rmse_m", "position RMSE (m)"),
@@ -33,16 +33,6 @@ def _cell(v) -> str:
     if isinstance(v, list):
         return ", ".join(_cell(x) for x in v) or "-"
     return str(v) if v not in (None, "") else "-"
-
-
-def _jsonable(x):
-    if isinstance(x, float) and math.isnan(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_jsonable(v) for v in x]
-    return x
 
 
 @click.command("replay")
@@ -94,7 +84,7 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
         plot_replays(replays, plot_path)
         click.echo(f"plot: {plot_path}", err=True)
     if as_json:
-        objs = [_jsonable({"log": str(r.path), "complete": r.complete, **r.metrics,
+        objs = [json_safe({"log": str(r.path), "complete": r.complete, **r.metrics,
                            "timeline": [{"t": t, "phase": p} for t, p in r.timeline],
                            **({"rerun": r.rerun} if r.rerun is not None else {})}) for r in replays]
         click.echo(json.dumps(objs[0] if len(objs) == 1 else objs))

@@ -47,12 +47,13 @@ def check_px4(link: str, module: int, wanted: dict[str, float], apply: bool = Fa
     try:
         conn = mavutil.mavlink_connection(link, source_system=mw.GCS_SYSTEM_ID, source_component=mw.GCS_COMPONENT_ID)
     except Exception as exc:  # pymavlink raises per transport
-        return [ParamCheck(module, link, n, v, None, note=f"cannot open: {exc}") for n, v in wanted.items()]
+        return [ParamCheck(module, link, n, v, None, note=f"cannot open: {exc}", unreachable=True)
+                for n, v in wanted.items()]
     try:
         target = _vehicle(conn, timeout)
         if target is None:
-            return [ParamCheck(module, link, n, v, None, note=f"no heartbeat within {timeout:g} s")
-                    for n, v in wanted.items()]
+            return [ParamCheck(module, link, n, v, None, note=f"no heartbeat within {timeout:g} s",
+                               unreachable=True) for n, v in wanted.items()]
         system, component = target
         checks = []
         for name, expected in wanted.items():

@@ -55,6 +55,8 @@ from groundstation.runtime.flight_config import FlightConfig, TrajectorySection,
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopActivity, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
+PREFLIGHT_WATCH_S = 1.0
+"""Preflight watches the mocap stream at least this long (a second publisher on the key shows up), s."""
 GIL_SWITCH_S = 1e-4
 STILL_SPEED = 0.2
 """Preflight: the estimated speed must be below this (mocap noise alone gives a few cm/s), m/s."""
@@ -84,11 +86,13 @@ class FlyResult:
     """Why the flight ended early ("" when it flew its plan; "operator land" when the operator cut it short)."""
     metrics: dict
     events: list = field(default_factory=list)
+    log_error: str | None = None
+    """Why the log writer failed (None: the log is complete)."""
 
     @property
     def nominal(self) -> bool:
-        """Landed as planned or as the operator asked; a failsafe landing is not nominal."""
-        return self.phase == "done" and self.reason in ("", "operator land")
+        """Landed as planned or as the operator asked, with a complete log; a failsafe landing is not nominal."""
+        return self.phase == "done" and self.reason in ("", "operator land") and self.log_error is None
 
 
 MOCAP_STATS_S = 1.0
@@ -161,15 +165,19 @@ def _firmware_param_issues(cfg: FlightConfig, base: Path, src: str, cache_dir: P
     return [f"firmware parameter: {b} (fix with: groundstation params {src} --apply)" for b in bad]
 
 
-def _hardware_backend(cfg: FlightConfig, assembly, src: str) -> CrazyflieBackend | MavlinkBackend:
+def _check_crazyflie_config(cfg: FlightConfig, assembly, src: str) -> None:
+    """What a Crazyflie flight needs of its config: the modules' thrust map, and a radio that carries the rate."""
+    if assembly.params.motor_command is None:
+        raise ConfigError("the assembly's module_params has no motor_command (the thrust map of the modules' "
+                          "platform, see configs/modules/paper_table2.toml)", path=src, key="assembly")
+    budget = radio_budget_issues(cfg.backend.modules, cfg.rate_hz, cfg.backend.radio_capacity_hz)
+    if budget:
+        raise ConfigError("; ".join(budget), path=src, key="backend.modules")
+
+
+def _hardware_backend(cfg: FlightConfig, assembly) -> CrazyflieBackend | MavlinkBackend:
     b = cfg.backend
     if b.kind == "crazyflie":
-        if assembly.params.motor_command is None:
-            raise ConfigError("the assembly's module_params has no motor_command (the thrust map of the modules' "
-                              "platform, see configs/modules/paper_table2.toml)", path=src, key="assembly")
-        budget = radio_budget_issues(b.modules, cfg.rate_hz, b.radio_capacity_hz)
-        if budget:
-            raise ConfigError("; ".join(budget), path=src, key="backend.modules")
         f = cfg.failsafe
         return CrazyflieBackend(b.modules, assembly.params, assembly.module_rotations,
                                 CrazyflieSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
@@ -202,13 +210,6 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     if cfg.backend.modules and len(cfg.backend.modules) != assembly.n:
         raise ConfigError(f"{len(cfg.backend.modules)} module links for an assembly of {assembly.n} modules",
                           path=src, key="backend.modules")
-    stamp_name = time.strftime("flight-%Y%m%d-%H%M%S.mcap")
-    log_file = Path(log_path) if log_path else (base / cfg.log_dir).resolve() / stamp_name
-    try:
-        log_file.parent.mkdir(parents=True, exist_ok=True)
-        log_file.touch()
-    except OSError as exc:
-        raise ConfigError(f"log directory cannot be written: {exc}", path=src, key="log_dir") from None
     faults = faults or Faults()
     requests = requests or Requests()
     t = cfg.trajectory
@@ -233,6 +234,16 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
 
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     security = mocap_security(cfg.mocap, base, src)
+    if cfg.backend.kind == "crazyflie":
+        _check_crazyflie_config(cfg, assembly, src)
+    # Every check of the input is done: only now is the log file made (bad input leaves nothing behind).
+    stamp_name = time.strftime("flight-%Y%m%d-%H%M%S.mcap")
+    log_file = Path(log_path) if log_path else (base / cfg.log_dir).resolve() / stamp_name
+    try:
+        log_file.parent.mkdir(parents=True, exist_ok=True)
+        log_file.touch()
+    except OSError as exc:
+        raise ConfigError(f"log directory cannot be written: {exc}", path=src, key="log_dir") from None
     activity = activity or LoopActivity()
     ended_cleanly = [False]
     offset = time.time() - time.monotonic()
@@ -254,7 +265,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             theirs = [] if m.listen else [m.endpoint]
             world = None
             # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
-            backend = _hardware_backend(cfg, assembly, src)
+            backend = _hardware_backend(cfg, assembly)
             param_issues = _firmware_param_issues(cfg, base, src, log_file.parent)
             backend.connect()
             stack.callback(backend.close)
@@ -274,8 +285,10 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
 
         # Preflight: let the mocap stream start (and the simulator settle on the ground).
-        deadline = time.monotonic() + PREFLIGHT_TIMEOUT_S
-        while (sub.latest() is None or sub.received < 10) and time.monotonic() < deadline:
+        watch_start = time.monotonic()
+        deadline = watch_start + PREFLIGHT_TIMEOUT_S
+        while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < PREFLIGHT_WATCH_S)
+               and time.monotonic() < deadline):
             if world is not None:
                 world.settle(0.02)
             time.sleep(0.005)
@@ -328,9 +341,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         metrics = flight_summary(flight, time.perf_counter() - wall0, plan.duration, stats)
         log.record("/flight/summary", {k: v for k, v in metrics.items() if k != "loop"} | {
             "phase": flight.phase, "reason": flight.reason}, to_log(time.monotonic()))
-    if log.error is not None:
-        raise ConfigError(f"the log writer failed: {log.error}", path=str(log_file))
-    return FlyResult(log_file, flight.phase, flight.reason, metrics, flight.events)
+    return FlyResult(log_file, flight.phase, flight.reason, metrics, flight.events, log.error)
 
 
 class _SimulatedWorld:

@@ -14,12 +14,14 @@ payloads that do not decode. It connects to the ground station's Zenoh endpoint 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
+import zenoh
 
 from groundstation.mocap.codec import PoseSample, encode
-from groundstation.mocap.zenoh_link import PosePublisher, open_session
+from groundstation.mocap.zenoh_link import PosePublisher
 from groundstation.rotations import rotvec_to_matrix
 
 
@@ -32,7 +34,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--after", type=float, default=5.0)
     ap.add_argument("--duration", type=float, default=10.0)
     a = ap.parse_args(argv)
-    session = open_session(connect=[a.connect])
+    cfg = zenoh.Config()  # as open_session, but retrying the connection every 50 ms: it may start first
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
+    cfg.insert_json5("connect/retry", '{period_init_ms: 50, period_max_ms: 50, period_increase_factor: 1}')
+    session = zenoh.open(cfg)
     try:
         time.sleep(a.after)
         pub = PosePublisher(session, a.key)

@@ -1,0 +1,404 @@
+"""The fault table: every fault of the reliability campaign, injected for real, ends in a defined safe state.
+
+Each row injects one fault the way it happens (a bad file or argument through the CLI, a hostile Zenoh publisher
+in another process, a loopback UDP relay that delays, drops and reorders, a stalled loop, a full disk, a busy
+second core) and checks the outcome: bad input is one line naming the key and exit 2, never armed; a fault in
+flight ends in a logged failsafe (landing or motors off) with its reason, exit code non-zero, the log readable.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from groundstation.replay.analysis import analyse
+from groundstation.runtime.closed_loop import PreflightError
+from groundstation.runtime.fly import fly
+from tests.peers import ROOT
+from tests.runtime.test_fly import config_with, read_log, sitl_config
+
+PEER_PORT, RELAY_PORT = 19900, 19910
+HOSTILE = "tcp/127.0.0.1:7490"
+
+
+@dataclass(frozen=True)
+class Fault:
+    id: str
+    injected: str
+    """The fault, as injected."""
+    expected: str
+    """The defined outcome."""
+    run: Callable
+
+
+FAULTS: list[Fault] = []
+
+
+def fault(injected: str, expected: str):
+    def register(fn):
+        FAULTS.append(Fault(fn.__name__.removeprefix("f_").replace("_", "-"), injected, expected, fn))
+        return fn
+    return register
+
+
+# -- bad input: one line naming the key, exit 2, nothing armed ---------------------------------------------------
+def _bad(cli, tmp_path, changes: dict, args: tuple = (), key: str = "", config: Path | None = None) -> None:
+    cfg = config or config_with(tmp_path, endpoint="tcp/127.0.0.1:7492", **changes)
+    logs = tmp_path / "logs"
+    logs.mkdir(exist_ok=True)
+    code, out, err = cli("fly", str(cfg), "--log", str(logs / "x.mcap"), *args)
+    assert code == 2 and err.count("\n") == 1 and key in err, err
+    assert not (logs / "x.mcap").exists() or "/control" not in read_log(logs / "x.mcap")[0]  # never armed
+
+
+BAD_INPUTS = [
+    ("duration_inf", {}, ("--duration", "inf"), "--duration"),
+    ("duration_1e7", {}, ("--duration", "1e7"), "--duration: Input should be less than or equal to 3600"),
+    ("duration_1e5", {}, ("--duration", "1e5"), "--duration"),
+    ("duration_negative", {}, ("--duration", "-1"), "--duration"),
+    ("duration_nan", {}, ("--duration", "nan"), "--duration"),
+    ("figure8_period_1e-6", {"period = 8.0": "period = 1e-6"}, (), "trajectory: the trajectory is beyond"),
+    ("mocap_rate_1e9", {"rate_hz = 100": "rate_hz = 1e9"}, (), "mocap.rate_hz"),
+    ("mavlink_port_99999", {'kind = "sim"': 'kind = "mavlink"\nmodules = ["udpout:127.0.0.1:99999", '
+                            '"udpout:127.0.0.1:14561"]'}, (), "port 99999 is not in 1..65535"),
+    ("crazyflie_port_99999", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:99999", '
+                              '"udp://127.0.0.1:19851"]'}, (), "backend.modules"),
+    ("radio_channel_200", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["radio://0/200/2M/E7E7E7E701", '
+                           '"radio://1/80/2M/E7E7E7E702"]'}, (), "radio channel 200"),
+    ("unknown_key", {"rate_hz = 250": "rate_hz = 250\nspeed = 3"}, (), "speed: unknown key"),
+    ("loop_rate_5000", {"rate_hz = 250": "rate_hz = 5000"}, (), "rate_hz"),
+    ("figure8_beyond_geofence", {"size = 0.6": "size = 5.0"}, (), "leaves the flight volume"),
+    ("geofence_below_take_off", {"geofence_lower = [-3.5, -3.5, -0.2]": "geofence_lower = [-3.5, -3.5, 0.5]"},
+     (), "leaves the flight volume"),
+    ("negative_mocap_timeout", {"mocap_timeout_s = 0.25": "mocap_timeout_s = -1"}, (), "mocap_timeout_s"),
+    ("three_links_for_two_modules", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:1", '
+                                     '"udp://127.0.0.1:2", "udp://127.0.0.1:3"]'}, (), "backend.modules"),
+    ("radio_budget", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["radio://0/80/2M/E7E7E7E701", '
+                      '"radio://0/80/2M/E7E7E7E702"]'}, (), "500 packets/s"),
+    ("firmware_params_on_sim", {"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nfirmware_params = '
+                                '"x.toml"'}, (), "firmware_params needs a crazyflie or mavlink backend"),
+    ("tls_without_certificates", {'endpoint = "tcp/127.0.0.1:7492"': 'endpoint = "tls/127.0.0.1:7492"\n'
+                                  'tls = { root_ca = "ca.pem", certificate = "gs.pem", private_key = "gs.key" }'},
+     (), "mocap.tls.root_ca: file not found"),
+    ("tls_on_a_tcp_endpoint", {"max_speed": "x", 'endpoint = "tcp/127.0.0.1:7492"': 'endpoint = "tcp/127.0.0.1:7492"'
+                               '\ntls = { root_ca = "ca.pem", certificate = "c", private_key = "k" }'}, (),
+     "with tls the endpoint must be tls/HOST:PORT"),
+]
+for _name, _changes, _args, _key in BAD_INPUTS:
+    def _case(cli, tmp_path, changes=_changes, args=_args, key=_key):
+        _bad(cli, tmp_path, changes, args, key)
+    _case.__name__ = f"f_bad_input_{_name}"
+    fault(f"fly with {_name.replace('_', ' ')}", f"exit 2 naming {_key!r}, never armed")(_case)
+
+
+@fault("a config file that is not TOML", "exit 2 naming the file, never armed")
+def f_bad_input_invalid_toml(cli, tmp_path):
+    cfg = tmp_path / "broken.toml"
+    cfg.write_text("assembly = \n[backend\n")
+    _bad(cli, tmp_path, {}, (), "broken.toml: invalid TOML", config=cfg)
+
+
+@fault("a config that names no assembly file", "exit 2 naming assembly, never armed")
+def f_bad_input_missing_assembly(cli, tmp_path):
+    _bad(cli, tmp_path, {str(ROOT / "configs/assemblies/toy_v2.json"): "/nonexistent.json"}, (), "assembly")
+
+
+@fault("a config file that does not exist", "exit 2 naming the file")
+def f_bad_input_missing_config(cli, tmp_path):
+    _bad(cli, tmp_path, {}, (), "file not found", config=tmp_path / "none.toml")
+
+
+@fault("a log directory that cannot be written", "exit 2 naming log_dir")
+def f_bad_input_unwritable_log_dir(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7492",
+                      **{'log_dir = "../../out/flights"': 'log_dir = "/proc/nope"'})
+    code, out, err = cli("fly", str(cfg))
+    assert code == 2 and "log_dir" in err and err.count("\n") == 1
+
+
+# -- mocap integrity: a hostile publisher in another process --------------------------------------------------------
+def _hostile_flight(tmp_path, mode: str, after: float = 5.5):
+    """A dry run whose ground station listens for mocap (the simulator and the attacker connect to it), attacked
+    ``after`` s after its start; returns the flight's result and its log."""
+    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": "latency_s = 0.005\nlisten = true"})
+    attacker = subprocess.Popen([sys.executable, "-m", "tests.faults.hostile_mocap", "--connect", HOSTILE,
+                                 "--mode", mode, "--after", str(after)], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    log = tmp_path / f"{mode}.mcap"
+    try:
+        res = fly(cfg, duration=6.0, log_path=log)
+    finally:
+        attacker.kill()
+        attacker.wait(10)
+    return res, log
+
+
+def _landed_on_the_genuine_stream(res, log):
+    assert res.phase == "done" and not res.nominal, (res.phase, res.reason)
+    assert res.reason.startswith("mocap fault: a second publisher on mocap/assembly/pose")
+    stats = [json.loads(d) for _, d in _records(log, "/mocap/stats")]
+    assert stats[-1]["foreign"] > 0 and stats[-1]["accepted"] > 500  # the genuine stream kept flowing
+    assert res.metrics["max_orientation_error_deg"] < 15.0  # landed upright
+
+
+def _records(log, topic):
+    with open(log, "rb") as fh:
+        from mcap.reader import make_reader
+
+        return [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages([topic])]
+
+
+for _mode, _what in [("second", "a second publisher takes over the pose key"),
+                     ("huge-seq", "one sample with sequence number 2^40"),
+                     ("replay", "samples re-sending old sequence numbers"),
+                     ("drift", "a pose drifting off the path at 5 cm/s"),
+                     ("spoof", "a pose 5 cm off with the attitude 20 deg off")]:
+    def _case(cli, tmp_path, mode=_mode):
+        _landed_on_the_genuine_stream(*_hostile_flight(tmp_path, mode))
+    _case.__name__ = f"f_mocap_{_mode.replace('-', '_')}"
+    fault(f"mocap: {_what}, mid-flight", "named failsafe landing on the genuine stream, exit 1")(_case)
+
+
+@fault("mocap: malformed samples on the pose key, mid-flight", "counted and ignored; the flight completes")
+def f_mocap_malformed(cli, tmp_path):
+    res, log = _hostile_flight(tmp_path, "malformed")
+    assert res.phase == "done" and res.nominal, res.reason
+    assert json.loads(_records(log, "/mocap/stats")[-1][1])["malformed"] > 50
+
+
+@fault("mocap: a second publisher already there before take-off", "preflight refuses, never armed")
+def f_mocap_attacker_before_take_off(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": "latency_s = 0.005\nlisten = true"})
+    attacker = subprocess.Popen([sys.executable, "-m", "tests.faults.hostile_mocap", "--connect", HOSTILE,
+                                 "--mode", "second", "--after", "0", "--duration", "30"], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1.5)
+        with pytest.raises(PreflightError, match="mocap: a second publisher on mocap/assembly/pose"):
+            fly(cfg, duration=2.0, log_path=tmp_path / "pre.mcap")
+    finally:
+        attacker.kill()
+        attacker.wait(10)
+
+
+@fault("mocap: the stream stops mid-flight", "landing on the last estimate, reason mocap stale, exit 1")
+def f_mocap_dropout(cli, tmp_path):
+    from groundstation.runtime.fly import Faults
+
+    faults = Faults()
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7493"), duration=4.0, log_path=tmp_path / "d.mcap",
+              faults=faults, on_period=lambda t: setattr(faults, "mocap_paused", t > 6.0))
+    assert res.phase == "done" and res.reason.startswith("mocap stale") and not res.nominal
+
+
+# -- the loop ----------------------------------------------------------------------------------------------------
+def _stalling(seconds: float, at: float = 6.0):
+    done = []
+
+    def on_period(t):
+        if t > at and not done:
+            done.append(t)
+            time.sleep(seconds)  # the control thread stops, as in a machine stall
+
+    return on_period
+
+
+@fault("the control loop stalls 200 ms in flight", "motors off, reason loop stalled (not a later tilt), exit 1")
+def f_loop_stall_200ms(cli, tmp_path):
+    log = tmp_path / "stall.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7494"), duration=4.0, log_path=log,
+              on_period=_stalling(0.2))
+    assert res.phase == "emergency" and res.reason.startswith("loop stalled 2"), res.reason
+    assert "the simulator ran on open-loop over it" in res.reason
+    assert analyse(log).metrics["stalls"] == 1
+
+
+@fault("the control loop stalls 50 ms in flight", "a warning names it; the flight goes on")
+def f_loop_stall_50ms(cli, tmp_path):
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7494"), duration=4.0, log_path=tmp_path / "s.mcap",
+              on_period=_stalling(0.05))
+    assert res.phase == "done" and res.nominal
+    assert any(text.startswith("loop stalled 5") for _, level, text in res.events if level == "warning")
+
+
+@fault("a CPU hog on the second core during the README's main command", "the flight completes (exit 0)")
+def f_cpu_hog(cli, tmp_path):
+    cpu = max(os.sched_getaffinity(0))
+    hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{cpu}}})\n"
+                                                  "while True: pass"])
+    try:
+        cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7495")
+        run = subprocess.run([sys.executable, "-m", "groundstation", "fly", str(cfg), "--duration", "4",
+                              "--log", str(tmp_path / "hog.mcap"), "--json"], capture_output=True, text=True,
+                             cwd=ROOT, timeout=120)
+    finally:
+        hog.kill()
+        hog.wait()
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["phase"] == "done"
+
+
+# -- the log ---------------------------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _small_disk(tmp_path):
+    """A 300 KiB tmpfs (root), else a 300 KiB file-size limit on the writer (SIGXFSZ ignored: writes fail)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(mount)],
+                             capture_output=True).returncode == 0
+    try:
+        yield mount, None if mounted else 300 * 1024
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(mount)], capture_output=True)
+
+
+@fault("the disk fills up in flight", "the writer's failure seen in flight, landing, summary printed, "
+                                      "what was written readable, exit 1")
+def f_full_disk(cli, tmp_path):
+    with _small_disk(tmp_path) as (disk, limit):
+        cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7496")
+        log = disk / "full.mcap"
+        code = ("import resource, signal, sys\n"
+                f"if {limit!r}: signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+                f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit!r}, {limit!r}))\n"
+                "from groundstation.cli import main; main(sys.argv[1:])")
+        run = subprocess.run([sys.executable, "-c", code, "fly", str(cfg), "--duration", "8", "--log", str(log),
+                              "--json"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert run.returncode == 1, run.stderr
+        summary = json.loads(run.stdout)
+        assert summary["phase"] == "done" and summary["reason"].startswith("log writer failed")
+        assert "landed early: log writer failed" in run.stderr
+        kept = shutil.copy(log, tmp_path / "kept.mcap")
+    r = analyse(kept)  # cut short, read up to the cut
+    assert not r.complete and r.metrics["periods"] > 250
+
+
+# -- the Crazyflie link: a loopback relay between the ground station and the simulated modules ----------------------
+@contextlib.contextmanager
+def _relayed(tmp_path, **faults):
+    procs = [subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
+                               str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                               "--mocap", "tcp/127.0.0.1:7481", "--params",
+                               str(ROOT / "firmware_params/crazyflie.toml")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    args = [f"--{k.replace('_', '-')}={v}" for k, v in faults.items()]
+    procs.append(subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(RELAY_PORT), "--target",
+                                   str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL))
+    time.sleep(2.0)
+    try:
+        yield sitl_config(tmp_path, "crazyflie", RELAY_PORT, "tcp/127.0.0.1:7481")
+    finally:
+        for p in procs:
+            p.terminate()
+            p.wait(10)
+
+
+def _max_tilt_deg(log) -> float:
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+    tilt = [0.0]
+    for _, data in _records(log, "/state/pose"):
+        q = PoseInFrame.FromString(data).pose.orientation
+        tilt.append(np.degrees(np.arccos(np.clip(1 - 2 * (q.x**2 + q.y**2), -1, 1))))
+    return max(tilt)
+
+
+@fault("crazyflie link: 30 ms added each way from the start", "preflight refuses (round trip), never armed")
+def f_link_30ms_from_the_start(cli, tmp_path):
+    with _relayed(tmp_path, delay_ms=30) as cfg:
+        log = tmp_path / "slow.mcap"
+        with pytest.raises(PreflightError, match=r"module 0 \(udp://127.0.0.1:19910\) link round trip \d+ ms > "
+                                                 r"14 ms"):
+            fly(cfg, log_path=log)
+    counts, _, logs, _ = read_log(log)
+    assert "/control" not in counts and any(b"link round trip" in d for _, d in logs)
+
+
+@fault("crazyflie link: 30 ms added each way in flight", "motors off before the attitude goes (no flip), exit 1")
+def f_link_30ms_in_flight(cli, tmp_path):
+    with _relayed(tmp_path, delay_ms=30, after=6.0) as cfg:
+        log = tmp_path / "late.mcap"
+        res = fly(cfg, duration=8.0, log_path=log)
+    assert res.phase == "emergency" and res.reason.startswith("link degraded: module") and "> 20 ms" in res.reason
+    assert _max_tilt_deg(log) < 20.0
+
+
+@fault("crazyflie link: 20 % of packets reordered in flight", "a link-degraded failsafe (no flip), exit 1")
+def f_link_reordering(cli, tmp_path):
+    with _relayed(tmp_path, reorder=0.2, reorder_ms=10, after=6.0) as cfg:
+        log = tmp_path / "reorder.mcap"
+        res = fly(cfg, duration=8.0, log_path=log)
+    assert res.phase in ("done", "emergency") and res.reason.startswith("link degraded: module")
+    assert not res.nominal and _max_tilt_deg(log) < 20.0
+
+
+@fault("crazyflie link: 20 % of packets duplicated", "the app drops the copies; the flight completes")
+def f_link_duplication(cli, tmp_path):
+    with _relayed(tmp_path, duplicate=0.2) as cfg:
+        res = fly(cfg, duration=3.0, log_path=tmp_path / "dup.mcap")
+    assert res.phase == "done" and res.nominal, res.reason
+
+
+@fault("crazyflie link: 2 % loss", "the flight completes")
+def f_link_loss_2_percent(cli, tmp_path):
+    with _relayed(tmp_path, loss=0.02) as cfg:
+        res = fly(cfg, duration=3.0, log_path=tmp_path / "lossy.mcap")
+    assert res.phase == "done" and res.nominal and res.metrics["pos_rmse_m"] < 0.03
+
+
+@fault("crazyflie parameters over a link losing 5 %", "the check completes (repeats what is lost)")
+def f_params_crazyflie_5_percent_loss(cli, tmp_path):
+    with _relayed(tmp_path, loss=0.05) as cfg:
+        code, out, err = cli("params", str(cfg), "--json")
+    rows = json.loads(out)
+    assert code == 0 and len(rows) == 8 and all(r["ok"] for r in rows), err
+
+
+@fault("parameters of modules that do not answer", "one line per module, exit 1")
+def f_params_silent_modules(cli, tmp_path):
+    for kind, port in (("crazyflie", 19746), ("mavlink", 19756)):
+        cfg = sitl_config(tmp_path, kind, port, "tcp/127.0.0.1:7608")
+        code, out, err = cli("params", str(cfg))
+        assert code == 1 and err.count("does not answer") == 2 and err.count("\n") == 2, (kind, err)
+
+
+# -- PX4 over MAVLink through a lossy relay ---------------------------------------------------------------------------
+@fault("MAVLink link losing 5 % (arming, flight, disarm)", "arms (commands repeated until acknowledged), flies, "
+                                                             "lands")
+def f_mavlink_5_percent_loss(cli, tmp_path):
+    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
+                             str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", "mavlink", "--port", "19960",
+                             "--mocap", "tcp/127.0.0.1:7497", "--params",
+                             str(ROOT / "firmware_params/px4/module_params.toml")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    relay = subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", "19970", "--target", "19960",
+                              "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL)
+    time.sleep(2.0)
+    try:
+        cfg = sitl_config(tmp_path, "mavlink", 19970, "tcp/127.0.0.1:7497")
+        text = cfg.read_text().replace("link_timeout_s = 0.1", "link_timeout_s = 0.3")  # 5 % of 100 Hz streams
+        cfg.write_text(text)
+        res = fly(cfg, duration=3.0, log_path=tmp_path / "px4.mcap")
+    finally:
+        relay.terminate()
+        peer.terminate()
+        relay.wait(10)
+        peer.wait(10)
+    assert res.phase == "done" and res.nominal, res.reason
+
+
+@pytest.mark.parametrize("row", FAULTS, ids=[f.id for f in FAULTS])
+def test_fault(row: Fault, cli, tmp_path):
+    row.run(cli, tmp_path)
