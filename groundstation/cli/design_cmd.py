@@ -14,7 +14,7 @@ from rich.table import Table
 
 from groundstation.assembly.assembly_file import load_assembly, save_assembly
 from groundstation.assembly.module import ModuleParams, load_module_params
-from groundstation.cli.common import progress_bar, stderr_console, writable_output
+from groundstation.cli.common import json_safe, progress_bar, stderr_console, writable_output
 from groundstation.design.candidates import read_candidates
 from groundstation.design.enumeration import SamplingPolicy
 from groundstation.design.optimize import SolverOptions
@@ -83,13 +83,25 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
         def on_result(_row) -> None:
             progress.advance(bar["task"])
 
-        sel = select(task, params, max_modules, sampling=sampling, candidates=cand, opts=SolverOptions(),
-                     workers=workers, scheduler=scheduler, results_path=results_path, on_level=on_level,
-                     on_result=on_result, min_modules=min_modules)
+        try:
+            sel = select(task, params, max_modules, sampling=sampling, candidates=cand, opts=SolverOptions(),
+                         workers=workers, scheduler=scheduler, results_path=results_path, on_level=on_level,
+                         on_result=on_result, min_modules=min_modules)
+        except KeyboardInterrupt:
+            progress.stop()
+            if results_path is not None:
+                saved = sum(1 for line in results_path.read_text().splitlines() if line.strip()) \
+                    if results_path.exists() else 0
+                click.echo(f"groundstation: design stopped; {saved} finished candidates are in {results_path}, "
+                           f"run the same command to resume", err=True)
+            else:
+                click.echo("groundstation: design stopped (with --results FILE a rerun resumes where it stopped)",
+                           err=True)
+            raise
     rows = results_table(sel.results)
     if table_path is not None:
         if table_path.suffix == ".json":
-            table_path.write_text(json.dumps(rows, indent=1) + "\n")
+            table_path.write_text(json.dumps(json_safe(rows), indent=1) + "\n")
         else:
             with table_path.open("w", newline="") as fh:
                 writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["n"])
@@ -112,14 +124,33 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     if as_json:
         click.echo(json.dumps(sel.best))
     else:
-        t = Table(title=f"{task.name}: best of {sum(r['n'] == sel.n for r in rows)} candidates with n = {sel.n}")
-        for col in ("code", "cost", "iterations", "wall s", "min clearance m"):
-            t.add_column(col, justify="right")
-        for r in [r for r in rows if r["n"] == sel.n and r["feasible"]][:10]:
-            t.add_row(r["code"], f"{r['cost']:.5g}", str(r["iterations"]), f"{r['wall_s']:.2f}",
-                      f"{r['min_clearance_m']:.3f}")
-        Console().print(t)
+        _print_ranking(sel, task.name, rows)
     for label, path in (("assembly", out_path), ("table", table_path), ("figures", fig_dir)):
         if path is not None:
             click.echo(f"{label}: {path}", err=True)
     return 0
+
+
+def _print_ranking(sel, task_name: str, rows: list[dict]) -> None:
+    """The feasible candidates of the chosen n (best first) with their start statistics, then the runner-up gap."""
+    level = [r for r in rows if r["n"] == sel.n]
+    t = Table(title=f"{task_name}: {len(sel.ranking)} of {len(level)} candidates with n = {sel.n} feasible")
+    # starts: run (feasible); optima: distinct local optima reached; hits: starts reaching the best; spread: gap
+    # to the topology's second local optimum.
+    for col in ("code", "cost", "vs best", "starts", "optima", "hits", "spread", "s"):
+        t.add_column(col, justify="right", no_wrap=True)
+    best_cost = sel.ranking[0].cost
+    for r in sel.ranking[:10]:
+        t.add_row(r.code, f"{r.cost:.5g}", f"{100 * (r.cost / best_cost - 1):+.2f}%",
+                  f"{r.starts} ({r.feasible_starts})", str(r.optima), str(r.best_hits),
+                  "-" if r.spread is None else f"{100 * r.spread:.2f}%", f"{r.wall_s:.1f}")
+    Console().print(t)
+    for r in level:
+        if not r["feasible"]:
+            why = r["certificate"] or (f"no start met the wrenches (least residual {r['max_wrench_residual']:.3g}, "
+                                       f"{r['starts']} starts)")
+            click.echo(f"  {r['code']}: infeasible: {why}")
+    runner = sel.runner_up
+    if runner is not None:
+        click.echo(f"best {sel.ranking[0].code} ({best_cost:.5g}); runner-up {runner.code} ({runner.cost:.5g}, "
+                   f"{100 * (runner.cost / best_cost - 1):+.2f} %)")

@@ -12,7 +12,7 @@ from rich.table import Table
 from groundstation.assembly.assembly_file import save_assembly
 from groundstation.assembly.module import ModuleParams, load_module_params
 from groundstation.assembly.topology import Topology, TopologyError
-from groundstation.cli.common import writable_output
+from groundstation.cli.common import json_safe, writable_output
 from groundstation.design.optimize import SolverOptions, optimize
 from groundstation.design.task import load_task
 from groundstation.errors import UsageError
@@ -28,11 +28,14 @@ EXIT_INFEASIBLE = 1
 @click.option("--starts", "starts", default=None,
               help="Multi-start: tilt of the outermost module of each starting bowl, degrees, e.g. 20,10,30,5 "
                    "(0 = flat start). Default: chosen by size.")
+@click.option("--max-starts", type=click.IntRange(min=1), default=None,
+              help="Start budget (default: by size, see README). Stops earlier once two starts agree on the best.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random starts.")
 @click.option("--fixed-yaw", is_flag=True, help="Do not optimize the body yaw (the paper's formulation).")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the assembly file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object.")
-def optimize_command(tasks: str, code: str, modules: str | None, starts: str, fixed_yaw: bool, out: str | None,
-                     as_json: bool) -> int:
+def optimize_command(tasks: str, code: str, modules: str | None, starts: str, max_starts: int | None, seed: int,
+                     fixed_yaw: bool, out: str | None, as_json: bool) -> int:
     """Optimize connector angles and inputs of one configuration for a task's wrench set."""
     out_path = writable_output(out, (".json",)) if out else None
     try:
@@ -46,20 +49,23 @@ def optimize_command(tasks: str, code: str, modules: str | None, starts: str, fi
     params = load_module_params(modules) if modules else ModuleParams()
     task = load_task(tasks)
     wrenches, weights = task.wrenches_for(topo.n, params)
-    design = optimize(topo, params, wrenches, weights, SolverOptions(rim_tilts_deg=rims, free_yaw=not fixed_yaw))
+    opts = SolverOptions(rim_tilts_deg=rims, free_yaw=not fixed_yaw, max_starts=max_starts, seed=seed)
+    design = optimize(topo, params, wrenches, weights, opts)
     record = design.record(task.name)
     if out_path is not None:
         save_assembly(out_path, record)
     if as_json:
-        click.echo(json.dumps(record))
+        click.echo(json.dumps(json_safe(record)))
     else:
         _print_summary(design, task.name)
     if out_path is not None:
         click.echo(f"assembly: {out_path}", err=True)
     if not design.feasible:
-        click.echo(f"groundstation: no feasible design for {code} ({design.status}; "
-                   f"residual {design.verification.max_wrench_residual:.3g}, "
-                   f"min clearance {design.verification.min_capsule_distance:.3f} m)", err=True)
+        why = design.certificate.reason if design.certificate else \
+            (f"no start met the wrenches ({len(design.starts)} starts; least residual "
+             f"{design.verification.max_wrench_residual:.3g}, min clearance "
+             f"{design.verification.min_capsule_distance:.3f} m)")
+        click.echo(f"groundstation: no feasible design for {code}: {why}", err=True)
         return EXIT_INFEASIBLE
     return 0
 
@@ -73,5 +79,10 @@ def _print_summary(design, task_name: str) -> None:
     table.add_row("yaw (deg)", f"{np.degrees(design.yaw):.2f}")
     table.add_row("max |Au - b|", f"{v.max_wrench_residual:.3g}")
     table.add_row("min clearance", f"{v.min_capsule_distance:.4f} m (need {v.required_distance:.3f})")
-    table.add_row("solver", f"{design.iterations} iterations, {design.wall_s:.2f} s, {len(design.starts)} start(s)")
+    feasible = sum(s.feasible for s in design.starts)
+    table.add_row("starts", f"{len(design.starts)} ({feasible} feasible), stopped: {design.stop_reason}; "
+                            f"{design.wall_s:.2f} s")
+    if design.optima:
+        spread = "" if design.spread is None else f", next {100 * design.spread:.2f} % above"
+        table.add_row("local optima", f"{len(design.optima)} distinct; best reached by {design.best_hits}{spread}")
     Console().print(table)

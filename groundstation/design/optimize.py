@@ -1,24 +1,19 @@
-"""Downwash-aware optimization of one configuration (paper §IV-B, eq. opti), solved with Ipopt via CasADi.
+"""Downwash-aware optimization of one configuration (paper §IV-B), multi-started, verified, with evidence.
 
-    min  sum_k lambda_k ||u_k||^2
-    s.t. A(alpha, yaw) u_k = b_k,  0 <= u_k <= u_max,  -pi/2 <= alpha <= pi/2,
-         dist(capsule axis i, capsule axis j) >= 2 r   for all module pairs i < j.
+The NLP and its reformulations are in :mod:`groundstation.design.nlp`, the initial guesses in
+:mod:`groundstation.design.starts`, the proofs of infeasibility in :mod:`groundstation.design.certificates`.
+This module runs them:
 
-Reformulations (the returned design always satisfies the original constraints, checked in numpy afterwards):
+1. A certificate is looked for first; a topology that provably cannot meet the wrench set is not solved.
+2. Each start runs a feasibility phase (least wrench violation, all other constraints hard) and, if that reaches
+   a point meeting the wrenches, the cost phase from there. A start whose feasibility phase stalls at a clear
+   violation skips the cost phase: it reports how far from feasible it got.
+3. The multi-start stops on evidence: once ``min_starts`` have run and the best cost has been reached by
+   ``confirmations`` starts (a second basin leading to the same optimum), or when the budget is spent.
+4. Every candidate is verified in numpy against the original constraints over ALL module pairs.
 
-* Inputs are scaled, ``v = u / u_max`` in [0, 1], and wrench rows by ``n m g`` (forces) and ``n m g l_c``
-  (torques), which cuts Ipopt iterations about tenfold.
-* The clearance between two segments is non-smooth (and degenerate for parallel capsules, the flat start).
-  It is replaced by an exact smooth equivalent from the separating-hyperplane theorem: segments S_i, S_j are at
-  least 2r apart iff some ``w`` with ``|w| <= 1`` and ``c`` put both end points of S_i on ``w.x >= c + r``
-  and both of S_j on ``w.x <= c - r``. Four linear-in-endpoint constraints and one norm constraint per pair.
-* Pairs are activated lazily: the NLP starts with the pairs within ``pair_margin`` of touching at the start,
-  every pair is checked in numpy after each solve, and pairs that came close are added before re-solving from
-  the previous solution. Far pairs never enter the NLP.
-* A free body yaw lets one representative of a C4 class face the task in any heading (see kinematics).
-* Multi-start over "bowl-up" folds: each child module raised and tilted toward its parent by the fold angle,
-  the root levelled so the mean thrust axis is vertical, inputs from the least-squares allocation. A flat start
-  (fold 0) is the paper's naive start and is reported for comparison.
+The design reports the distinct local optima its starts reached, how many reached the best, the relative gap to
+the second best, and the Boender-Rinnooy Kan estimate of optima no start reached.
 """
 
 from __future__ import annotations
@@ -26,7 +21,6 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field
 
-import casadi as ca
 import numpy as np
 
 from groundstation.assembly import kinematics as kin
@@ -34,33 +28,54 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.assembly_file import assembly_record
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
-from groundstation.design.task import GRAVITY
+from groundstation.design import starts as st
+from groundstation.design.certificates import Certificate, infeasibility_certificate
+from groundstation.design.interrupt import StopFlag, interruptible
+from groundstation.design.nlp import COST, FEASIBILITY, LiftedNlp, capsule_ends, close_pairs
+
+RESIDUAL_TOLERANCE = 1e-6
+"""A design meets a wrench when ``|A u - b|_inf <= RESIDUAL_TOLERANCE max(1, |b|_inf)`` (N, N m): floating
+point, not modelling slack."""
+BOUND_TOLERANCE = 1e-6
+"""Inputs may leave [0, u_max] by this fraction of ``u_max`` (Ipopt's interior point touches its bounds)."""
+FEASIBILITY_GATE = 1e-3
+"""A feasibility phase ending with a wrench violation above this fraction of ``max(1, |b|_inf)`` ends the start."""
 
 
 @dataclass(frozen=True)
 class SolverOptions:
-    """Knobs of :func:`optimize`."""
+    """Knobs of :func:`optimize`. ``None`` picks by size (see :func:`start_budget`, :func:`default_rim_tilts`)."""
 
     rim_tilts_deg: tuple[float, ...] | None = None
-    """Starts of the multi-start, tried in order: tilt of the outermost module of the starting bowl, degrees.
-    The fold per connection is this tilt divided by the lattice radius of the assembly (at least 1/2), so a
-    90-module assembly starts as shallow a bowl as a two-module V; a fixed fold compounds with distance and
-    starts large assemblies nearly inverted (n = 90: 85 Ipopt iterations at a 3 degree fold, 994 at 20).
-    ``None`` picks the order by size (:func:`default_rim_tilts`)."""
-    max_starts_feasible: int = 2
-    """Stop after this many starts have produced a verified feasible design."""
+    """Fold starts, tried in order: tilt of the outermost module of the starting bowl, degrees."""
+    yaw_turns: tuple[int, ...] = (0, 2, 1, 3)
+    """Quarter turns of the starting yaw tried with each fold (ignored when ``free_yaw`` is off)."""
+    random_starts: int = 8
+    """Random shapes appended to the fold starts (used only when the budget reaches them)."""
+    seed: int = 0
+    """Seed of the random starts."""
+    min_starts: int | None = None
+    """Starts always run (unless a certificate proves infeasibility)."""
+    max_starts: int | None = None
+    """Start budget."""
+    confirmations: int = 2
+    """Stop once this many starts reached the best cost (after ``min_starts``)."""
+    same_optimum_rtol: float = 1e-6
+    """Costs within this relative distance are the same local optimum."""
     pair_margin: float = 0.15
     """A module pair enters the NLP when its capsules are closer than ``2 r + pair_margin``, m."""
+    clearance_margin: float = 1e-4
+    """The NLP asks for ``2 r + clearance_margin`` between capsule axes, so that the verified distance is at
+    least ``2 r`` exactly, m."""
     max_rounds: int = 6
-    """Re-solves allowed for activating pairs that came close."""
+    """Re-solves per phase for activating pairs that came close."""
+    iter_per_module: int = 4
+    min_iter: int = 200
+    """Ipopt iteration cap per solve: ``max(min_iter, iter_per_module * n)``. A start that converges slowly
+    (n = 30: 486 iterations from one start, 61 from another) cannot eat the budget; successful starts took about
+    3.5 n iterations (n = 90: 323)."""
     max_iter: int = 3000
-    """Ipopt iteration limit per solve."""
-    first_pass_max_iter: int = 200
-    first_pass_iter_per_module: int = 4
-    """Every start first runs with at most ``max(first_pass_max_iter, first_pass_iter_per_module * n)``
-    iterations; only if no start is feasible are the starts run again up to ``max_iter``. A start that converges
-    slowly (n = 30: 486 iterations from one start, 61 from another) then cannot eat the time another start
-    needs. Successful starts took about 3.5 n iterations in the benchmark (n = 90: 323), hence 4 per module."""
+    """Cap for the second pass: when no start was feasible, starts that hit the first cap run again with this."""
     tol: float = 1e-8
     """Ipopt convergence tolerance (scaled problem)."""
     free_yaw: bool = True
@@ -80,22 +95,37 @@ class Verification:
     min_capsule_distance: float
     """Smallest distance between any two capsule axes, m (``inf`` for one module)."""
     required_distance: float
-    """2 r, m."""
+    """2 r, m: required without tolerance."""
+    residual_tolerance: float
+    """Largest wrench residual accepted, N or N m (``RESIDUAL_TOLERANCE`` max(1, |b|_inf))."""
+    bound_tolerance: float
+    """Largest input bound violation accepted, rad^2/s^2."""
     feasible: bool
-    """All checks within tolerance: residual <= 1e-6 max(1, |b|), bounds <= 1e-6 u_max, distance >= 2r - 1e-6."""
+    """All checks pass."""
 
 
 @dataclass(frozen=True)
 class StartReport:
     """What one start of the multi-start did."""
 
-    rim_tilt_deg: float
-    fold_deg: float
+    start: str
+    """The initial guess, e.g. ``fold 20 deg, yaw +90 deg``."""
     status: str
+    """Ipopt's status of the last solve, or ``Infeasible_Local`` when the feasibility phase stalled."""
     feasible: bool
     cost: float
+    """Cost of the verified design, (rad^2/s^2)^2 (``inf`` if infeasible)."""
+    residual: float
+    """Wrench residual at the end of the start, N or N m."""
     iterations: int
     wall_s: float
+    """Wall time of the start, s; the split below does not count the numpy verification."""
+    ipopt_s: float
+    """In Ipopt itself (the KKT factorizations), s."""
+    function_s: float
+    """Evaluating the NLP's functions and derivatives, s."""
+    build_s: float
+    """Building solvers for pair sets no earlier start used, s."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,17 +145,25 @@ class Design:
     u: np.ndarray = field(repr=False)
     """(K, 4n) rotor inputs per wrench, rad^2/s^2, in rotor order (module-major, q = 1..4)."""
     cost: float
-    """sum_k lambda_k |u_k|^2, (rad^2/s^2)^2."""
+    """sum_k lambda_k |u_k|^2, (rad^2/s^2)^2 (``inf`` when infeasible)."""
     status: str
     """Ipopt's return status of the chosen start, or why nothing was solved."""
     iterations: int
-    """Ipopt iterations over all rounds of the chosen start."""
+    """Ipopt iterations of the chosen start."""
     wall_s: float
     """Wall time of the whole multi-start, s."""
     verification: Verification
     starts: tuple[StartReport, ...] = ()
     active_pairs: int = 0
     """Capsule pairs that entered the NLP for the chosen start."""
+    certificate: Certificate | None = None
+    """Proof of infeasibility (then nothing was solved)."""
+    stop_reason: str = ""
+    """``confirmed`` (best reached by enough starts), ``budget`` (start budget spent) or ``certificate``."""
+    optima: tuple[float, ...] = ()
+    """Distinct costs of the verified designs the starts reached, ascending."""
+    best_hits: int = 0
+    """Starts that reached the best cost."""
 
     @property
     def feasible(self) -> bool:
@@ -136,6 +174,19 @@ class Design:
         return self.topology.n
 
     @property
+    def spread(self) -> float | None:
+        """Relative gap from the best to the second-best local optimum reached, or None with fewer than two."""
+        return (self.optima[1] - self.optima[0]) / self.optima[0] if len(self.optima) > 1 else None
+
+    @property
+    def expected_unseen_optima(self) -> float:
+        """Boender & Rinnooy Kan (1987): with ``w`` distinct optima from ``N`` successful starts, the posterior
+        expected number of local optima is ``w (N - 1) / (N - w - 2)``; this is that minus ``w`` (``inf`` until
+        ``N > w + 2``). Small means more starts are unlikely to find another optimum."""
+        w, n = len(self.optima), sum(s.feasible for s in self.starts)
+        return w * (n - 1) / (n - w - 2) - w if n > w + 2 else float("inf")
+
+    @property
     def assembly(self) -> Assembly:
         """The designed assembly (geometry only)."""
         return Assembly(self.topology, self.params, self.alpha, self.yaw)
@@ -143,16 +194,21 @@ class Design:
     def record(self, task_name: str = "") -> dict:
         """Assembly-file record: the geometry plus the design's wrenches, inputs, cost, statistics, checks."""
         rec = assembly_record(self.assembly)
+        unseen = self.expected_unseen_optima
         rec.update({
             "status": self.status,
             "feasible": self.feasible,
-            "cost": self.cost,
+            "cost": self.cost if self.feasible else None,
             "task": task_name,
             "wrenches": self.wrenches.tolist(),
             "weights": self.weights.tolist(),
             "u": self.u.tolist(),
             "solver": {"iterations": self.iterations, "wall_s": self.wall_s, "active_pairs": self.active_pairs,
-                       "starts": [asdict(s) for s in self.starts]},
+                       "stop_reason": self.stop_reason, "optima": list(self.optima), "best_hits": self.best_hits,
+                       "spread": self.spread,
+                       "expected_unseen_optima": unseen if np.isfinite(unseen) else None,
+                       "starts": [{**asdict(s), "cost": s.cost if s.feasible else None} for s in self.starts]},
+            "certificate": asdict(self.certificate) if self.certificate else None,
             "verification": asdict(self.verification),
         })
         return rec
@@ -168,277 +224,169 @@ def verify(topo: Topology, params: ModuleParams, alpha, yaw: float, u: np.ndarra
     angle = float(max(0.0, np.max(np.abs(alpha)) - np.pi / 2))
     dist = kin.pairwise_capsule_distances(pos, rot, params)
     dmin = float(dist.min()) if topo.n > 1 else float("inf")
-    scale = max(1.0, float(np.max(np.abs(wrenches)))) if len(wrenches) else 1.0
-    ok = (residual <= 1e-6 * scale and bound <= 1e-6 * params.u_max and angle <= 1e-9
-          and dmin >= 2 * params.r - 1e-6 and bool(np.all(np.isfinite(u))))
-    return Verification(residual, bound, angle, dmin, 2 * params.r, ok)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# initial guesses
-
-def fold_angles(topo: Topology, fold: float) -> np.ndarray:
-    """Angles that raise every child module and tilt it toward its parent by ``fold`` rad, root levelled."""
-    alpha = np.zeros(topo.n + 1)
-    for k, (_child, _parent, connector) in enumerate(topo.bfs_tree()):
-        t = kin.connector_vector(connector)
-        probe = kin.rot_x(1.0) if kin.hinge_axis(connector) == "x" else kin.rot_y(1.0)
-        # Positive angle tilts the child's axis along +(probe e3); "toward the parent" is along -t.
-        sign = -np.sign((probe @ kin.E3) @ t)
-        alpha[2 + k] = sign * fold
-    pos, rot = kin.module_frames(topo, alpha, 1.0)
-    m = np.mean([r @ kin.E3 for r in rot], axis=0)
-    a1 = np.arctan2(-m[0], m[2])
-    m2 = kin.rot_y(a1) @ m
-    a0 = np.arctan2(m2[1], m2[2])
-    alpha[0], alpha[1] = np.clip([a0, a1], -np.pi / 2, np.pi / 2)
-    return alpha
-
-
-def _principal_angle(points: np.ndarray) -> float | None:
-    """Direction (rad, mod pi) of the largest spread of 2-D points about the origin; None when isotropic."""
-    if len(points) == 0:
-        return None
-    cov = points.T @ points
-    vals, vecs = np.linalg.eigh(cov)
-    if vals[1] - vals[0] <= 1e-9 * max(vals[1], 1e-12):
-        return None
-    return float(np.arctan2(vecs[1, 1], vecs[0, 1]))
-
-
-def task_yaw(topo: Topology, wrenches: np.ndarray) -> float:
-    """Starting yaw that turns the assembly's long lattice axis toward the task's main lateral force direction.
-
-    A fold only creates lateral force along the connections, so a task pushing along y needs the long axis of
-    the assembly along y. The yaw gradient vanishes at a 90 degree mismatch, hence this initialization.
-    """
-    cells = np.asarray(topo.cells, dtype=float)
-    structure = _principal_angle(cells - cells.mean(axis=0))
-    lateral = _principal_angle(wrenches[:, :2])
-    if structure is None or lateral is None:
-        return 0.0
-    return lateral - structure
-
-
-def least_squares_inputs(a: np.ndarray, wrenches: np.ndarray, u_max: float) -> np.ndarray:
-    """Minimum-norm inputs for every wrench, clipped to the bounds: the starting inputs."""
-    return np.clip(wrenches @ np.linalg.pinv(a).T, 0.0, u_max)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# the NLP
-
-class _Problem:
-    """Symbolic model of eq. (opti) for one topology, lifted for a sparse Hessian.
-
-    Module orientations ``R_i`` and positions ``p_i`` are variables tied by one kinematic equality per
-    connection (``R_child = R_parent R_rel(alpha_e)``, ``p_child`` from :func:`kin.child_position`), like
-    multiple shooting: every second derivative then couples only neighbouring modules, where the chained
-    products of the direct formulation couple every angle with every other and make the Hessian dense and
-    slow to build. The solution's angles are verified with the direct kinematics afterwards.
-    """
-
-    def __init__(self, topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray,
-                 opts: SolverOptions) -> None:
-        self.topo, self.params, self.opts = topo, params, opts
-        n, k = topo.n, len(wrenches)
-        self.n, self.k = n, k
-        nmg = n * params.mass * GRAVITY
-        row_scale = np.array([nmg] * 3 + [nmg * params.l_c] * 3)
-        self.alpha = ca.SX.sym("alpha", n + 1)
-        self.yaw = ca.SX.sym("yaw", 1 if opts.free_yaw else 0)
-        self.rot = [ca.SX.sym(f"R{i}", 3, 3) for i in range(n)]
-        self.pos = [ca.SX.sym(f"p{i}", 3) for i in range(n)]
-        self.v = ca.SX.sym("v", 4 * n, k)
-        yaw = self.yaw[0] if opts.free_yaw else 0.0
-        kinematic = [ca.vec(self.rot[0] - kin.root_rotation(self.alpha[0], self.alpha[1], yaw, kin.CASADI)),
-                     self.pos[0]]
-        for e, (child, parent, connector) in enumerate(topo.bfs_tree()):
-            rel = kin.relative_rotation(connector, self.alpha[2 + e], kin.CASADI)
-            kinematic.append(ca.vec(self.rot[child] - self.rot[parent] @ rel))
-            kinematic.append(self.pos[child] - kin.child_position(self.pos[parent], self.rot[parent],
-                                                                  self.rot[child], connector, params.l_c, kin.CASADI))
-        # The centroid is a variable of its own: substituting mean(p) would couple every module's position with
-        # every other module's inputs and fill the Hessian.
-        self.centroid = ca.SX.sym("centroid", 3)
-        kinematic.append(self.centroid - sum(self.pos[1:], self.pos[0]) / n)
-        offsets = [p - self.centroid for p in self.pos]
-        moments = ca.DM(kin.module_moment_matrix(params))
-        wrench_rows = []
-        for j in range(k):
-            force, torque = 0, 0
-            for i in range(n):
-                u_i = params.u_max * self.v[4 * i:4 * i + 4, j]
-                z = self.rot[i][:, 2]
-                thrust = params.c_f * ca.sum1(u_i)
-                force = force + thrust * z
-                torque = torque + thrust * ca.cross(offsets[i], z) + self.rot[i] @ (moments @ u_i)
-            wrench_rows.append((ca.vertcat(force, torque) - wrenches[j]) / row_scale)
-        self.g_eq = ca.vertcat(*kinematic, *wrench_rows)
-        self.ends = [(o - params.capsule_a * r[:, 2], o - params.capsule_b * r[:, 2])
-                     for o, r in zip(offsets, self.rot, strict=True)]
-        self.cost = sum(float(weights[j]) * ca.sumsqr(self.v[:, j]) for j in range(k))
-
-    def solve(self, alpha0, yaw0, v0, pairs, planes0, max_iter: int):
-        """Solve with the given active pairs; ``planes0`` holds (w, c) starting values per pair."""
-        r = self.params.r
-        w = ca.SX.sym("w", 3, len(pairs))
-        c = ca.SX.sym("c", len(pairs))
-        g_pairs = []
-        for idx, (i, j) in enumerate(pairs):
-            wi, ci = w[:, idx], c[idx]
-            for e in self.ends[i]:
-                g_pairs.append(ca.dot(wi, e) - ci - r)
-            for e in self.ends[j]:
-                g_pairs.append(ci - ca.dot(wi, e) - r)
-            g_pairs.append(1.0 - ca.sumsqr(wi))
-        frames = [ca.vertcat(ca.vec(rr), pp) for rr, pp in zip(self.rot, self.pos, strict=True)]
-        x = ca.vertcat(self.alpha, self.yaw, ca.vec(self.v), *frames, self.centroid, ca.vec(w), c)
-        g = ca.vertcat(self.g_eq, *g_pairs)
-        n_eq = self.g_eq.shape[0]
-        lbg = np.zeros(n_eq + len(g_pairs))
-        ubg = np.concatenate([np.zeros(n_eq), np.full(len(g_pairs), np.inf)])
-        n_a, n_y, n_v = self.n + 1, self.yaw.shape[0], 4 * self.n * self.k
-        # Natural bounds on the lifted variables keep Ipopt's steps sane: rotation entries lie in [-1, 1],
-        # positions (relative to the root) within the chain's reach, plane normals in the unit ball and plane
-        # offsets within reach of any capsule end.
-        reach = 2.0 * self.params.l_c * self.n
-        frame_hi = np.tile(np.concatenate([np.ones(9), np.full(3, reach)]), self.n)
-        plane_hi = np.concatenate([np.ones(3 * len(pairs)), np.full(len(pairs), reach + self.params.capsule_b)])
-        lbx = np.concatenate([np.full(n_a, -np.pi / 2), np.full(n_y, -4 * np.pi), np.zeros(n_v), -frame_hi,
-                              np.full(3, -reach), -plane_hi])
-        ubx = np.concatenate([np.full(n_a, np.pi / 2), np.full(n_y, 4 * np.pi), np.ones(n_v), frame_hi,
-                              np.full(3, reach), plane_hi])
-        pos, rot = kin.module_frames(self.topo, alpha0, self.params.l_c, yaw0)
-        # Lifted positions are relative to the root module, not the centroid.
-        frames0 = np.concatenate([np.concatenate([rr.ravel(order="F"), pp - pos[0]]) for rr, pp in zip(rot, pos,
-                                                                                                       strict=True)])
-        x0 = np.concatenate([alpha0, [yaw0][:n_y], np.ravel(v0, order="F"), frames0, -pos[0],
-                             np.ravel(planes0[0], order="F"), planes0[1]])
-        solver = ca.nlpsol("opti", "ipopt", {"x": x, "f": self.cost, "g": g}, {
-            "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-            "ipopt.max_iter": max_iter, "ipopt.tol": self.opts.tol,
-            "ipopt.constr_viol_tol": 1e-9, "ipopt.mu_strategy": "adaptive",
-        })
-        sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        stats = solver.stats()
-        xs = np.array(sol["x"]).ravel()
-        alpha = xs[:n_a]
-        yaw = float(xs[n_a]) if n_y else 0.0
-        v = xs[n_a + n_y:n_a + n_y + n_v].reshape((4 * self.n, self.k), order="F")
-        return alpha, yaw, v, stats["return_status"], int(stats["iter_count"])
-
-    def endpoints(self, alpha, yaw) -> np.ndarray:
-        """(3, 2n) numeric capsule end points for the angles (direct kinematics)."""
-        pos, rot = kin.module_frames(self.topo, alpha, self.params.l_c, yaw)
-        ends = kin.capsule_endpoints(pos, rot, self.params)
-        return np.column_stack([e for pair in ends for e in pair])
-
-
-def _planes(ends: np.ndarray, pairs, r: float):
-    """Separating plane (w, c) starting values from the closest points of each pair's segments."""
-    w = np.zeros((3, len(pairs)))
-    c = np.zeros(len(pairs))
-    for idx, (i, j) in enumerate(pairs):
-        p0, p1, q0, q1 = ends[:, 2 * i], ends[:, 2 * i + 1], ends[:, 2 * j], ends[:, 2 * j + 1]
-        _, s, t = kin.segment_distance(p0, p1, q0, q1)
-        a, b = p0 + s * (p1 - p0), q0 + t * (q1 - q0)
-        d = a - b
-        if np.linalg.norm(d) < 1e-9:  # touching axes: separate along the line between module centres
-            d = (p0 + p1) / 2 - (q0 + q1) / 2
-            d[2] = 0.0
-        d = d / max(np.linalg.norm(d), 1e-12)
-        w[:, idx] = d
-        c[idx] = d @ (a + b) / 2
-    return w, c
-
-
-def _close_pairs(ends: np.ndarray, n: int, threshold: float) -> set[tuple[int, int]]:
-    out = set()
-    for i in range(n):
-        for j in range(i + 1, n):
-            d = kin.segment_distance(ends[:, 2 * i], ends[:, 2 * i + 1], ends[:, 2 * j], ends[:, 2 * j + 1])[0]
-            if d < threshold:
-                out.add((i, j))
-    return out
-
-
-def _run_start(problem: _Problem, topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray,
-               opts: SolverOptions, rim: float, radius: float, max_iter: int):
-    """One start of the multi-start: bowl of rim tilt ``rim`` (deg), solve with pair activation rounds, verify."""
-    t0 = time.perf_counter()
-    threshold = 2 * params.r + opts.pair_margin
-    fold = rim / radius
-    alpha = fold_angles(topo, np.radians(fold))
-    yaw = task_yaw(topo, wrenches) if opts.free_yaw else 0.0
-    pos, rot = kin.module_frames(topo, alpha, params.l_c, yaw)
-    v = least_squares_inputs(kin.allocation_matrix(pos, rot, params), wrenches, params.u_max).T / params.u_max
-    ends = problem.endpoints(alpha, yaw)
-    pairs = _close_pairs(ends, topo.n, threshold)
-    iters, status = 0, "not solved"
-    # unknowns: angles, yaw, inputs, lifted frames (R, p per module) and the centroid
-    n_var = (topo.n + 1) + int(opts.free_yaw) + 4 * topo.n * len(wrenches) + 12 * topo.n + 3
-    if problem.g_eq.shape[0] > n_var:
-        # More equalities than unknowns (one module, several distinct wrenches): Ipopt refuses such
-        # problems; the least-squares start is verified instead and is reported infeasible unless it fits.
-        pairs, status, rounds = set(), "Not_Enough_Degrees_Of_Freedom", 0
-    else:
-        rounds = opts.max_rounds
-    for _ in range(rounds):
-        ordered = sorted(pairs)
-        alpha, yaw, v, status, it = problem.solve(alpha, yaw, v, ordered, _planes(ends, ordered, params.r), max_iter)
-        iters += it
-        ends = problem.endpoints(alpha, yaw)
-        new = _close_pairs(ends, topo.n, 2 * params.r + 0.5 * opts.pair_margin) - pairs
-        if not new:
-            break
-        pairs |= new
-    u = np.clip(v.T * params.u_max, 0.0, params.u_max)
-    ver = verify(topo, params, alpha, yaw, u, wrenches)
-    cost = float(np.sum(weights * np.sum(u * u, axis=1)))
-    report = StartReport(rim, fold, status, ver.feasible, cost, iters, time.perf_counter() - t0)
-    return (ver.feasible, -cost, alpha, yaw, u, status, iters, ver, len(pairs)), report
+    res_tol = RESIDUAL_TOLERANCE * (max(1.0, float(np.max(np.abs(wrenches)))) if len(wrenches) else 1.0)
+    bound_tol = BOUND_TOLERANCE * params.u_max
+    ok = (residual <= res_tol and bound <= bound_tol and angle <= 1e-9 and dmin >= 2 * params.r
+          and bool(np.all(np.isfinite(u))))
+    return Verification(residual, bound, angle, dmin, 2 * params.r, res_tol, bound_tol, ok)
 
 
 def default_rim_tilts(n: int) -> tuple[float, ...]:
-    """Start order measured on the random-wrench sets (wall time of the whole multi-start, one core):
+    """Fold order measured on the random-wrench sets (wall time of the whole multi-start, one core):
     20 degrees first for n = 30 took 2.9 / 8.1 / 6.5 s on three topologies against 23.8 / 5.7 / 5.5 s with
     10 first, and 20.5 vs 25.5 s at n = 60; at n = 90, 10 first took 76 s against 150 s. Larger assemblies
     want the shallower first bowl."""
     return (20.0, 10.0, 30.0, 5.0) if n <= 60 else (10.0, 20.0, 30.0, 5.0)
 
 
-def lattice_radius(topo: Topology) -> float:
-    """Largest distance of a module from the centroid, lattice units, at least 1/2."""
-    cells = np.asarray(topo.cells, dtype=float)
-    return max(0.5, float(np.max(np.linalg.norm(cells - cells.mean(axis=0), axis=1))))
+def start_budget(n: int) -> tuple[int, int]:
+    """``(min_starts, max_starts)`` by size. Small assemblies solve in a fraction of a second per start and get
+    every quarter turn of several folds (§IV-C, n = 4: 0.4-0.8 s per topology for 16-24 starts). Large ones take
+    1.5-2 s (n = 30) and 10-25 s (n = 90) per start, and nearly every start ends in a local optimum of its own
+    (n = 30: 6 distinct optima from 6 starts, 0.5-2 % apart), so the budget is what the default command can spend:
+    about 10 s at n = 30 and under a minute at n = 90 (``python -m benchmarks.design``)."""
+    if n <= 8:
+        return 16, 32
+    if n <= 20:
+        return 4, 12
+    if n <= 40:
+        return 2, 5
+    return 2, 3
+
+
+@dataclass(frozen=True)
+class _Outcome:
+    """A start's end point with its verification."""
+
+    alpha: np.ndarray
+    yaw: float
+    u: np.ndarray
+    cost: float
+    status: str
+    iterations: int
+    verification: Verification
+    active_pairs: int
+
+
+class _MultiStart:
+    """The starts of one topology: shared NLP (and its cached solvers), the runs, and what they found."""
+
+    def __init__(self, topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray,
+                 opts: SolverOptions, stop: StopFlag) -> None:
+        self.topo, self.params, self.wrenches, self.weights, self.opts = topo, params, wrenches, weights, opts
+        self.stop = stop
+        self.nlp = LiftedNlp(topo, params, wrenches, weights, free_yaw=opts.free_yaw,
+                             clearance=2 * params.r + opts.clearance_margin, tol=opts.tol, should_stop=stop)
+        self.scale = max(1.0, float(np.max(np.abs(wrenches))))
+        self.known: set[tuple[int, int]] = set()
+        """Module pairs some start has had under clearance constraints."""
+
+    def _ends(self, alpha, yaw) -> np.ndarray:
+        pos, rot = kin.module_frames(self.topo, alpha, self.params.l_c, yaw)
+        return capsule_ends(pos, rot, self.params)
+
+    def _phase(self, phase: str, alpha, yaw, v, active: set, max_iter: int, rounds: int):
+        """One phase with up to ``rounds`` solves, each adding the pairs that came close to ``active``;
+        returns the new point, status, iterations."""
+        p, status, iters = self.params, "not solved", 0
+        for _ in range(rounds):
+            sol = self.nlp.solve(phase, alpha, yaw, v, tuple(sorted(active)), max_iter)
+            self.stop.check()
+            alpha, yaw, v, status = sol.alpha, sol.yaw, sol.v, sol.status
+            iters += sol.iterations
+            self.split[0] += sol.wall_s - sol.function_s
+            self.split[1] += sol.function_s
+            new = close_pairs(self._ends(alpha, yaw), 2 * p.r + 0.5 * self.opts.pair_margin) - active
+            if not new:
+                break
+            active |= new
+        return alpha, yaw, v, status, iters
+
+    def run(self, start: st.Start, max_iter: int) -> tuple[_Outcome, StartReport]:
+        t0, built = time.perf_counter(), self.nlp.build_s
+        self.split = [0.0, 0.0]  # Ipopt, function evaluations, s
+        p = self.params
+        alpha, yaw = st.initial_shape(start, self.topo, self.wrenches, self.opts.free_yaw)
+        pos, rot = kin.module_frames(self.topo, alpha, p.l_c, yaw)
+        v = st.least_squares_inputs(kin.allocation_matrix(pos, rot, p), self.wrenches, p.u_max).T / p.u_max
+        # Pairs any earlier start needed join this one's from the outset: a solver is built per pair set (2 s at
+        # n = 90), and with the union later starts mostly reuse one (n = 90, 4 starts: 7 builds without it).
+        active = close_pairs(self._ends(alpha, yaw), 2 * p.r + self.opts.pair_margin) | self.known
+        # One feasibility solve: pairs that came close during it join the cost phase, whose rounds start from
+        # points that already meet the wrenches and take 15-30 iterations (n = 90) where a second feasibility
+        # round took 70-120.
+        alpha, yaw, v, status, iters = self._phase(FEASIBILITY, alpha, yaw, v, active, max_iter, 1)
+        u = np.clip(v.T * p.u_max, 0.0, p.u_max)
+        residual = verify(self.topo, p, alpha, yaw, u, self.wrenches).max_wrench_residual
+        if residual > FEASIBILITY_GATE * self.scale:
+            status = "Infeasible_Local"
+        elif self.nlp.equalities <= self.nlp.unknowns:
+            # (One module with several wrenches has more equalities than unknowns: Ipopt refuses the cost phase,
+            # and the feasibility phase's point is the only candidate.)
+            alpha, yaw, v, status, it = self._phase(COST, alpha, yaw, v, active, max_iter, self.opts.max_rounds)
+            iters += it
+            u = np.clip(v.T * p.u_max, 0.0, p.u_max)
+        self.known |= active
+        ver = verify(self.topo, p, alpha, yaw, u, self.wrenches)
+        cost = float(np.sum(self.weights * np.sum(u * u, axis=1))) if ver.feasible else float("inf")
+        out = _Outcome(alpha, float(np.arctan2(np.sin(yaw), np.cos(yaw))), u, cost, status, iters, ver, len(active))
+        return out, StartReport(start.label, status, ver.feasible, cost, ver.max_wrench_residual, iters,
+                                time.perf_counter() - t0, *self.split, self.nlp.build_s - built)
+
+
+def _optima(costs: list[float], rtol: float) -> tuple[tuple[float, ...], int]:
+    """Distinct local optima among ``costs`` (ascending) and how many costs reached the least."""
+    distinct: list[float] = []
+    for c in sorted(costs):
+        if not distinct or c > distinct[-1] * (1 + rtol):
+            distinct.append(c)
+    best_hits = sum(c <= distinct[0] * (1 + rtol) for c in costs) if distinct else 0
+    return tuple(distinct), best_hits
 
 
 def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray | None = None,
              opts: SolverOptions | None = None) -> Design:
     """Optimize connector angles and inputs of ``topo`` for the wrench set; multi-start, verified in numpy."""
     opts = opts or SolverOptions()
-    radius = lattice_radius(topo)
     wrenches = np.atleast_2d(np.asarray(wrenches, dtype=float))
     weights = np.ones(len(wrenches)) if weights is None else np.asarray(weights, dtype=float)
     t_start = time.perf_counter()
-    problem = _Problem(topo, params, wrenches, weights, opts)
-    best: tuple | None = None
+    certificate = infeasibility_certificate(topo, params, wrenches)
+    if certificate is not None:
+        alpha = np.zeros(topo.n + 1)
+        u = np.zeros((len(wrenches), 4 * topo.n))
+        return Design(topology=topo, params=params, wrenches=wrenches, weights=weights, alpha=alpha, yaw=0.0, u=u,
+                      cost=float("inf"), status="Infeasible_Certified", iterations=0,
+                      wall_s=time.perf_counter() - t_start, verification=verify(topo, params, alpha, 0.0, u, wrenches),
+                      certificate=certificate, stop_reason="certificate")
+    lo, hi = start_budget(topo.n)
+    min_starts = min(opts.min_starts or lo, opts.max_starts or hi)
+    max_starts = opts.max_starts or hi
+    turns = opts.yaw_turns if opts.free_yaw else (0,)
+    plan = st.plan(opts.rim_tilts_deg or default_rim_tilts(topo.n), turns, opts.random_starts, opts.seed)[:max_starts]
+    outcomes: list[_Outcome] = []
     reports: list[StartReport] = []
-    first_pass = max(opts.first_pass_max_iter, opts.first_pass_iter_per_module * topo.n)
-    for max_iter in (min(first_pass, opts.max_iter), opts.max_iter):
-        for rim in opts.rim_tilts_deg or default_rim_tilts(topo.n):
-            candidate, report = _run_start(problem, topo, params, wrenches, weights, opts, rim, radius, max_iter)
-            reports.append(report)
-            if best is None or (candidate[0], candidate[1]) > (best[0], best[1]):
-                best = candidate
-            if sum(r.feasible for r in reports) >= opts.max_starts_feasible:
+    stop_reason = "budget"
+    first_cap = max(opts.min_iter, opts.iter_per_module * topo.n)
+    with interruptible() as stop:
+        runs = _MultiStart(topo, params, wrenches, weights, opts, stop)
+        for i, start in enumerate(plan):
+            out, rep = runs.run(start, first_cap)
+            outcomes.append(out)
+            reports.append(rep)
+            _, hits = _optima([o.cost for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
+            if i + 1 >= min_starts and hits >= opts.confirmations:
+                stop_reason = "confirmed"
                 break
-        if any(r.feasible for r in reports) or max_iter >= opts.max_iter:
-            break
-    assert best is not None
-    feasible, neg_cost, alpha, yaw, u, status, iters, ver, n_pairs = best
-    return Design(topology=topo, params=params, wrenches=wrenches, weights=weights, alpha=np.asarray(alpha),
-                  yaw=float(np.arctan2(np.sin(yaw), np.cos(yaw))), u=u, cost=-neg_cost, status=status,
-                  iterations=iters, wall_s=time.perf_counter() - t_start, verification=ver,
-                  starts=tuple(reports), active_pairs=n_pairs)
+        if not any(o.verification.feasible for o in outcomes) and opts.max_iter > first_cap:
+            for start, rep in list(zip(plan, reports, strict=False)):
+                if rep.status == "Maximum_Iterations_Exceeded":
+                    out, rep2 = runs.run(start, opts.max_iter)
+                    outcomes.append(out)
+                    reports.append(rep2)
+    optima, best_hits = _optima([o.cost for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
+    best = min(outcomes, key=lambda o: (not o.verification.feasible, o.cost, o.verification.max_wrench_residual))
+    return Design(topology=topo, params=params, wrenches=wrenches, weights=weights, alpha=np.asarray(best.alpha),
+                  yaw=best.yaw, u=best.u, cost=best.cost, status=best.status, iterations=best.iterations,
+                  wall_s=time.perf_counter() - t_start, verification=best.verification, starts=tuple(reports),
+                  active_pairs=best.active_pairs, stop_reason=stop_reason, optima=optima, best_hits=best_hits)

@@ -1,17 +1,18 @@
 """Selection across configurations (paper §IV-C, Algorithm 2).
 
 For n = 1, 2, ... solve every candidate topology of n modules (exhaustive, sampled, or from a candidates file);
-stop at the first n with a feasible design and pick the least cost. Candidates run in parallel, in a local
-process pool or on a Dask distributed scheduler. Every finished candidate is appended to a JSON-lines results
-file at once, so an interrupted sweep resumes without redoing finished candidates.
+stop at the first n with a feasible design and pick the least cost; the runner-up and its gap are reported with
+it. Candidates run in parallel, in a local process pool or on a Dask distributed scheduler. Every finished
+candidate is appended to a JSON-lines results file at once, so an interrupted sweep (Ctrl-C, a kill) resumes
+without redoing finished candidates.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import signal
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -39,8 +40,20 @@ class CandidateResult:
     wall_s: float
     min_clearance_m: float
     max_wrench_residual: float
+    """Of the chosen start: the least any start reached when infeasible, N or N m."""
     key: str
     """Fingerprint of (task, module parameters, solver options, topology): what resuming matches on."""
+    starts: int = 0
+    feasible_starts: int = 0
+    optima: int = 0
+    """Distinct local optima the starts reached."""
+    best_hits: int = 0
+    """Starts that reached the best cost."""
+    spread: float | None = None
+    """Relative gap from the best to the second-best local optimum of this topology."""
+    stop_reason: str = ""
+    certificate: str = ""
+    """Proof of infeasibility, when there is one."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +64,17 @@ class Selection:
     """Assembly-file record of the least-cost feasible design at the first feasible n, or None."""
     n: int | None
     results: tuple[CandidateResult, ...]
+
+    @property
+    def ranking(self) -> list[CandidateResult]:
+        """Feasible candidates of the chosen n, least cost first (ties broken by code)."""
+        return sorted((r for r in self.results if r.n == self.n and r.feasible), key=lambda r: (r.cost, r.code))
+
+    @property
+    def runner_up(self) -> CandidateResult | None:
+        """The second-best feasible candidate of the chosen n."""
+        ranked = self.ranking
+        return ranked[1] if len(ranked) > 1 else None
 
 
 def fingerprint(task: Task, params: ModuleParams, opts: SolverOptions, code: str) -> str:
@@ -65,7 +89,10 @@ def solve_candidate(code: str, task: Task, params: ModuleParams, opts: SolverOpt
     d = optimize(topo, params, wrenches, weights, opts)
     row = CandidateResult(topo.n, code, d.status, d.feasible, d.cost, d.iterations, d.wall_s,
                           d.verification.min_capsule_distance, d.verification.max_wrench_residual,
-                          fingerprint(task, params, opts, code))
+                          fingerprint(task, params, opts, code), starts=len(d.starts),
+                          feasible_starts=sum(s.feasible for s in d.starts), optima=len(d.optima),
+                          best_hits=d.best_hits, spread=d.spread, stop_reason=d.stop_reason,
+                          certificate=d.certificate.reason if d.certificate else "")
     return row, d.record(task.name)
 
 
@@ -105,8 +132,16 @@ def _truncate_torn_tail(path: Path) -> None:
             fh.truncate(data.rfind(b"\n") + 1)
 
 
+def _ignore_sigint() -> None:
+    """Pool worker initializer: Ctrl-C is the parent's to handle (it terminates the pool)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 class _Runner:
-    """Submits candidates to a local process pool or a Dask scheduler and yields results as they finish."""
+    """Submits candidates to a local process pool or a Dask scheduler and yields results as they finish.
+
+    On Ctrl-C (``KeyboardInterrupt`` in the parent) the local pool is terminated at once: the candidates in flight
+    are lost and solved again on resume, the finished ones are already in the results file."""
 
     def __init__(self, workers: int, scheduler: str | None) -> None:
         self.workers, self.scheduler = workers, scheduler
@@ -120,12 +155,16 @@ class _Runner:
             self._client = Client(self.scheduler, timeout="20s")
         elif self.workers > 1:
             # spawn, not fork: CasADi and the numba runtime hold threads and state a fork would copy half-done.
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"))
+            self._pool = get_context("spawn").Pool(self.workers, initializer=_ignore_sigint)
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, *_exc) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+            if exc_type is None:
+                self._pool.close()
+            else:
+                self._pool.terminate()
+            self._pool.join()
         if self._client is not None:
             self._client.close()
 
@@ -137,12 +176,14 @@ class _Runner:
             for fut in dask_completed(futures):
                 yield fut.result()
         elif self._pool is not None:
-            futures = [self._pool.submit(solve_candidate, c, task, params, opts) for c in codes]
-            for fut in as_completed(futures):
-                yield fut.result()
+            yield from self._pool.imap_unordered(_solve_args, [(c, task, params, opts) for c in codes])
         else:
             for c in codes:
                 yield solve_candidate(c, task, params, opts)
+
+
+def _solve_args(args: tuple) -> tuple[CandidateResult, dict]:
+    return solve_candidate(*args)
 
 
 def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: SamplingPolicy | None = None,
@@ -191,4 +232,5 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
 def results_table(results: Iterable[CandidateResult]) -> list[dict]:
     """Rows as dicts, sorted by n then cost (infeasible last), for JSON or CSV output."""
     rows = [asdict(r) for r in results]
-    return sorted(rows, key=lambda r: (r["n"], not r["feasible"], r["cost"] if np.isfinite(r["cost"]) else 0))
+    return sorted(rows, key=lambda r: (r["n"], not r["feasible"], r["cost"] if np.isfinite(r["cost"]) else 0,
+                                       r["code"]))

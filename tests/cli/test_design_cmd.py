@@ -41,3 +41,40 @@ def test_infeasible_within_max(cli):
 def test_bad_input(cli, args, fragment):
     code, out, err = cli(*args)
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
+
+
+IV_C = str(ROOT / "configs/tasks/paper_iv_c_three_wrenches.toml")
+
+
+def _lines(path: Path) -> list[str]:
+    return path.read_text().splitlines() if path.exists() else []
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_ctrl_c_stops_a_sweep_and_the_rerun_resumes(cli, tmp_path, workers):
+    """Ctrl-C (SIGINT to the terminal's process group) stops the sweep: exit 130, finished candidates kept."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    results = tmp_path / "r.jsonl"
+    args = ["design", IV_C, "--min-modules", "4", "--max-modules", "4", "--results", str(results),
+            "--workers", workers]
+    proc = subprocess.Popen([sys.executable, "-m", "groundstation", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 300
+    while not _lines(results) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "run the same command to resume" in err and "Traceback" not in err
+    kept = _lines(results)
+    assert 1 <= len(kept) < 7  # stopped before the end of the 7 candidates
+    code, out, err = cli(*args)
+    assert code == 0 and "best oSEE" in out
+    after = _lines(results)
+    assert len(after) == 7 and after[:len(kept)] == kept  # resumed: nothing solved twice, nothing lost

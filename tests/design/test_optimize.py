@@ -9,6 +9,7 @@ from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.design.optimize import SolverOptions, optimize, verify
 from groundstation.design.task import load_task
+from tests.recheck import wrenches_from_rotors
 
 ROOT = Path(__file__).resolve().parents[2]
 P = ModuleParams()
@@ -54,12 +55,7 @@ def test_saved_design_rechecked_from_poses(tmp_path):
     _, rec = load_assembly(path)
     # Recompute wrenches and clearance from the saved rotor list and poses, without package geometry.
     u = np.array(rec["u"])
-    wrench = np.zeros((len(u), 6))
-    for k, rotor in enumerate(rec["rotors"]):
-        p, z = np.array(rotor["position"]), np.array(rotor["axis"])
-        f = P.c_f * u[:, k, None] * z
-        wrench[:, :3] += f
-        wrench[:, 3:] += np.cross(p, f) + rotor["spin"] * P.c_m * u[:, k, None] * z
+    wrench = wrenches_from_rotors(rec, P.c_f, P.c_m)
     np.testing.assert_allclose(wrench, rec["wrenches"], atol=1e-6)
     assert u.min() >= 0 and u.max() <= P.u_max
     mods = rec["modules"]
@@ -90,3 +86,55 @@ def test_verify_detects_each_violation():
     assert not verify(topo, P, alpha, 0.0, u - u.max(), b).feasible  # negative inputs
     bowl_down = np.radians([-30, 0, 60])  # axes converge below: capsules cross
     assert verify(topo, P, bowl_down, 0.0, u, b).min_capsule_distance < 2 * P.r
+
+
+def test_clearance_is_verified_without_tolerance():
+    # Two modules leaning toward each other (a bowl-down V): find the lean at which the capsule axes are exactly
+    # 2r apart, then step 1e-7 rad either side.
+    from scipy.optimize import brentq
+
+    topo = Topology.from_code("oS")
+
+    def angles(t):
+        return np.array([-t, 0.0, 2 * t])
+
+    def gap(t):
+        pos, rot = kin.module_frames(topo, angles(t), P.l_c)
+        return kin.pairwise_capsule_distances(pos, rot, P)[0, 1] - 2 * P.r
+
+    touch = brentq(gap, 0.0, 0.3, xtol=1e-14)
+    for t in (touch - 1e-7, touch + 1e-7):
+        ver = verify(topo, P, angles(t), 0.0, np.zeros((1, 8)), np.zeros((1, 6)))
+        assert abs(ver.min_capsule_distance - 2 * P.r) < 1e-6
+        assert ver.feasible == (ver.min_capsule_distance >= 2 * P.r)
+    assert verify(topo, P, angles(touch - 1e-7), 0.0, np.zeros((1, 8)), np.zeros((1, 6))).feasible
+    assert not verify(topo, P, angles(touch + 1e-7), 0.0, np.zeros((1, 8)), np.zeros((1, 6))).feasible
+
+
+def test_designs_keep_the_clearance_margin():
+    b, w = toy_wrenches()
+    d = optimize(Topology.from_code("oS"), P, b, w)
+    assert d.verification.min_capsule_distance >= 2 * P.r
+    assert d.verification.residual_tolerance == pytest.approx(1e-6 * np.max(np.abs(b)))
+
+
+def test_multi_start_stops_on_evidence_and_within_budget():
+    b, w = toy_wrenches()
+    d = optimize(Topology.from_code("oS"), P, b, w, SolverOptions(min_starts=2, max_starts=6))
+    # The toy case has one optimum: two starts agree and the search stops there.
+    assert d.stop_reason == "confirmed" and len(d.starts) == 2 and d.best_hits == 2 and len(d.optima) == 1
+    capped = optimize(Topology.from_code("oS"), P, b, w, SolverOptions(min_starts=3, max_starts=3))
+    assert len(capped.starts) == 3 and capped.best_hits == 3
+    assert capped.cost == pytest.approx(d.cost, rel=1e-6)
+    assert [s.start for s in capped.starts] == ["fold 20 deg, yaw +0 deg", "fold 20 deg, yaw +180 deg",
+                                                "fold 20 deg, yaw +90 deg"]
+
+
+def test_start_statistics_in_the_record():
+    b, w = toy_wrenches()
+    d = optimize(Topology.from_code("oS"), P, b, w, SolverOptions(min_starts=6, max_starts=6))
+    rec = d.record()["solver"]
+    assert rec["stop_reason"] == "confirmed" and len(rec["starts"]) == 6 and rec["best_hits"] == 6
+    # Boender-Rinnooy Kan: one optimum from six successful starts, w (N - 1) / (N - w - 2) - w = 5/3 - 1.
+    assert rec["expected_unseen_optima"] == pytest.approx(5 / 3 - 1)
+    assert rec["spread"] is None and rec["optima"] == [pytest.approx(d.cost)]

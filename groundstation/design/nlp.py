@@ -1,0 +1,274 @@
+"""The downwash-aware NLP of one topology (paper §IV-B, eq. opti), in CasADi, solved by Ipopt.
+
+    min  sum_k lambda_k ||u_k||^2
+    s.t. A(alpha, yaw) u_k = b_k,  0 <= u_k <= u_max,  -pi/2 <= alpha <= pi/2,
+         dist(capsule axis i, capsule axis j) >= 2 r   for all module pairs i < j.
+
+Reformulations (designs are verified against the original constraints in numpy afterwards, see ``optimize``):
+
+* Inputs are scaled, ``v = u / u_max`` in [0, 1], and wrench rows by ``n m g`` (forces) and ``n m g l_c``
+  (torques), which cuts Ipopt iterations about tenfold.
+* Lifted kinematics: module orientations ``R_i`` and positions ``p_i`` (relative to the root) are variables tied
+  by one equality per connection, like multiple shooting. Every second derivative then couples only neighbouring
+  modules; the chained products of the direct formulation couple every angle with every other.
+* The clearance between two segments is non-smooth (and degenerate for parallel capsules). It is replaced by an
+  exact smooth equivalent from the separating-hyperplane theorem: segments S_i, S_j are at least ``d`` apart iff
+  some ``w`` with ``|w| <= 1`` and ``c`` put both end points of S_i on ``w.x >= c + d/2`` and both of S_j on
+  ``w.x <= c - d/2``. Solved for ``d = 2 r + clearance_margin`` so that the verified distance is at least
+  ``2 r`` without a tolerance. The constraints use root-relative positions: separation is invariant under
+  translation, and leaving the centroid out keeps every pair row sparse (with it, colouring the constraint
+  Jacobian took 8.8 of the 9.6 s that building the n = 90 solver cost).
+* Pairs are activated lazily (the ``pairs`` of :meth:`LiftedNlp.solve`; the caller adds pairs that came close
+  and solves again): far pairs never enter the NLP.
+* Two phases share one solver per pair set, selected by a parameter and the bounds of the wrench slacks ``s``:
+  *feasibility* minimises ``|s|^2`` with ``(A u_k - b_k) / scale = s_k`` (constraint violation first, from any
+  start), *cost* fixes ``s = 0`` and minimises the paper's cost. Ipopt drops fixed variables.
+* Solvers are built once per (pair set, iteration cap) and reused by every start and phase of the topology.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+# Ipopt factorizes with MUMPS over the OpenBLAS that casadi bundles, loaded with the Ipopt plugin at the first
+# solve. Its threads do not pay for these sparse systems: at n = 90 the same start took 10.5 s either way on an
+# idle 2-core machine, but 21 s of CPU with threads against 15 s without, and a second core is not idle in a
+# design sweep (one candidate per core) or on a shared machine. An explicit setting by the user wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import casadi as ca  # noqa: E402
+import numpy as np
+
+from groundstation.assembly import kinematics as kin
+from groundstation.assembly.module import ModuleParams
+from groundstation.assembly.topology import Topology
+from groundstation.design.task import GRAVITY
+
+FEASIBILITY = "feasibility"
+COST = "cost"
+
+Pairs = tuple[tuple[int, int], ...]
+
+PHASE1_REGULARIZATION = 1e-6
+"""Weight of the paper's cost in the feasibility phase. Without it the inputs are free along the wrench-meeting
+manifold and the Hessian singular there: an n = 30 feasibility phase took 18-30 s at weight 1e-8 / 1e-10 and
+1.9 s at 1e-6, whose pull on the inputs leaves a wrench violation of order 1e-6 n m g (the cost phase then
+meets the wrenches exactly)."""
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One Ipopt solve of the lifted NLP, mapped back to the paper's variables."""
+
+    alpha: np.ndarray
+    """(n + 1,) root and connector angles, rad."""
+    yaw: float
+    """Body yaw, rad."""
+    v: np.ndarray
+    """(4n, K) scaled inputs ``u / u_max``."""
+    status: str
+    """Ipopt's return status."""
+    iterations: int
+    wall_s: float
+    """Wall time of the solve, s (building the solver not included)."""
+    function_s: float
+    """Of which evaluating the NLP's functions and derivatives, s; the rest is Ipopt (mostly MUMPS)."""
+
+
+class _StopCheck(ca.Callback):
+    """Ipopt iteration callback: a nonzero return ends the solve with ``User_Requested_Stop``."""
+
+    def __init__(self, sizes: dict[str, int], should_stop: Callable[[], bool]) -> None:
+        ca.Callback.__init__(self)
+        self.sizes, self.should_stop = sizes, should_stop
+        self.construct("stop_check", {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "stop"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
+
+    def eval(self, arg):
+        return [1.0 if self.should_stop() else 0.0]
+
+
+class LiftedNlp:
+    """Symbolic model of eq. (opti) for one topology and wrench set, and its cached Ipopt solvers.
+
+    ``should_stop`` is polled every Ipopt iteration; when it returns True the solve ends with
+    ``User_Requested_Stop`` (see :mod:`groundstation.design.interrupt`)."""
+
+    def __init__(self, topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray, *,
+                 free_yaw: bool, clearance: float, tol: float, should_stop: Callable[[], bool] | None = None) -> None:
+        self.topo, self.params, self.clearance, self.tol = topo, params, clearance, tol
+        self.should_stop = should_stop
+        n, k = topo.n, len(wrenches)
+        self.n, self.k = n, k
+        nmg = n * params.mass * GRAVITY
+        row_scale = np.array([nmg] * 3 + [nmg * params.l_c] * 3)
+        self.alpha = ca.SX.sym("alpha", n + 1)
+        self.yaw = ca.SX.sym("yaw", 1 if free_yaw else 0)
+        self.rot = [ca.SX.sym(f"R{i}", 3, 3) for i in range(n)]
+        self.pos = [ca.SX.sym(f"p{i}", 3) for i in range(n)]
+        self.v = ca.SX.sym("v", 4 * n, k)
+        self.slack = ca.SX.sym("s", 6 * k)
+        yaw = self.yaw[0] if free_yaw else 0.0
+        kinematic = [ca.vec(self.rot[0] - kin.root_rotation(self.alpha[0], self.alpha[1], yaw, kin.CASADI)),
+                     self.pos[0]]
+        for e, (child, parent, connector) in enumerate(topo.bfs_tree()):
+            rel = kin.relative_rotation(connector, self.alpha[2 + e], kin.CASADI)
+            kinematic.append(ca.vec(self.rot[child] - self.rot[parent] @ rel))
+            kinematic.append(self.pos[child] - kin.child_position(self.pos[parent], self.rot[parent],
+                                                                  self.rot[child], connector, params.l_c, kin.CASADI))
+        # The centroid is a variable of its own: substituting mean(p) would couple every module's position with
+        # every other module's inputs and fill the Hessian.
+        self.centroid = ca.SX.sym("centroid", 3)
+        kinematic.append(self.centroid - sum(self.pos[1:], self.pos[0]) / n)
+        offsets = [p - self.centroid for p in self.pos]
+        moments = ca.DM(kin.module_moment_matrix(params))
+        wrench_rows = []
+        for j in range(k):
+            force, torque = 0, 0
+            for i in range(n):
+                u_i = params.u_max * self.v[4 * i:4 * i + 4, j]
+                z = self.rot[i][:, 2]
+                thrust = params.c_f * ca.sum1(u_i)
+                force = force + thrust * z
+                torque = torque + thrust * ca.cross(offsets[i], z) + self.rot[i] @ (moments @ u_i)
+            wrench_rows.append((ca.vertcat(force, torque) - wrenches[j]) / row_scale - self.slack[6 * j:6 * j + 6])
+        self.g_eq = ca.vertcat(*kinematic, *wrench_rows)
+        self.ends = [(p - params.capsule_a * r[:, 2], p - params.capsule_b * r[:, 2])
+                     for p, r in zip(self.pos, self.rot, strict=True)]
+        self.phase = ca.SX.sym("phase", 2)
+        cost = sum(float(weights[j]) * ca.sumsqr(self.v[:, j]) for j in range(k))
+        self.objective = self.phase[0] * cost + self.phase[1] * ca.sumsqr(self.slack)
+        self._solvers: dict[tuple[Pairs, int], ca.Function] = {}
+        self._callbacks: list[_StopCheck] = []
+        self.build_s = 0.0
+        """Wall time spent building solvers so far, s."""
+
+    @property
+    def unknowns(self) -> int:
+        """Variables of the cost phase: angles, yaw, inputs, lifted frames and the centroid."""
+        return (self.n + 1) + self.yaw.shape[0] + 4 * self.n * self.k + 12 * self.n + 3
+
+    @property
+    def equalities(self) -> int:
+        return int(self.g_eq.shape[0])
+
+    def _solver(self, pairs: Pairs, max_iter: int) -> ca.Function:
+        key = (pairs, max_iter)
+        if key not in self._solvers:
+            t0 = time.perf_counter()
+            half = self.clearance / 2
+            w = ca.SX.sym("w", 3, len(pairs))
+            c = ca.SX.sym("c", len(pairs))
+            g_pairs = []
+            for idx, (i, j) in enumerate(pairs):
+                wi, ci = w[:, idx], c[idx]
+                g_pairs += [ca.dot(wi, e) - ci - half for e in self.ends[i]]
+                g_pairs += [ci - ca.dot(wi, e) - half for e in self.ends[j]]
+                g_pairs.append(1.0 - ca.sumsqr(wi))
+            frames = [ca.vertcat(ca.vec(rr), pp) for rr, pp in zip(self.rot, self.pos, strict=True)]
+            x = ca.vertcat(self.alpha, self.yaw, ca.vec(self.v), self.slack, *frames, self.centroid, ca.vec(w), c)
+            g = ca.vertcat(self.g_eq, *g_pairs)
+            options = {
+                "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+                "ipopt.tol": self.tol, "ipopt.constr_viol_tol": 1e-9, "ipopt.mu_strategy": "adaptive",
+            }
+            if self.should_stop is not None:
+                sizes = {"x": x.shape[0], "f": 1, "g": g.shape[0], "lam_x": x.shape[0], "lam_g": g.shape[0],
+                         "lam_p": self.phase.shape[0]}
+                options["iteration_callback"] = _StopCheck(sizes, self.should_stop)
+                self._callbacks.append(options["iteration_callback"])  # CasADi does not own Python callbacks
+            self._solvers[key] = ca.nlpsol("opti", "ipopt", {"x": x, "f": self.objective, "g": g, "p": self.phase},
+                                           options)
+            self.build_s += time.perf_counter() - t0
+        return self._solvers[key]
+
+    def solve(self, phase: str, alpha0: np.ndarray, yaw0: float, v0: np.ndarray, pairs: Pairs,
+              max_iter: int) -> Solution:
+        """One solve from the given start, the module ``pairs`` under clearance constraints."""
+        solver = self._solver(pairs, max_iter)
+        n, k, n_a, n_y = self.n, self.k, self.n + 1, self.yaw.shape[0]
+        n_v, n_s, n_p = 4 * n * k, 6 * k, len(pairs)
+        # Natural bounds on the lifted variables keep Ipopt's steps sane: rotation entries lie in [-1, 1],
+        # positions (relative to the root) within the chain's reach, plane normals in the unit ball and plane
+        # offsets within reach of any capsule end.
+        reach = 2.0 * self.params.l_c * n
+        frame_hi = np.tile(np.concatenate([np.ones(9), np.full(3, reach)]), n)
+        plane_hi = np.concatenate([np.ones(3 * n_p), np.full(n_p, reach + self.params.capsule_b)])
+        slack_hi = np.full(n_s, np.inf if phase == FEASIBILITY else 0.0)
+        lbx = np.concatenate([np.full(n_a, -np.pi / 2), np.full(n_y, -4 * np.pi), np.zeros(n_v), -slack_hi,
+                              -frame_hi, np.full(3, -reach), -plane_hi])
+        ubx = np.concatenate([np.full(n_a, np.pi / 2), np.full(n_y, 4 * np.pi), np.ones(n_v), slack_hi,
+                              frame_hi, np.full(3, reach), plane_hi])
+        pos, rot = kin.module_frames(self.topo, alpha0, self.params.l_c, yaw0)
+        rel = [p - pos[0] for p in pos]  # the lifted positions are relative to the root module
+        frames0 = np.concatenate([np.concatenate([r.ravel(order="F"), p]) for r, p in zip(rot, rel, strict=True)])
+        planes_w, planes_c = separating_planes(capsule_ends(rel, rot, self.params), pairs)
+        x0 = np.concatenate([alpha0, [yaw0][:n_y], np.ravel(v0, order="F"), np.zeros(n_s), frames0, -pos[0],
+                             np.ravel(planes_w, order="F"), planes_c])
+        n_eq = self.equalities
+        t0 = time.perf_counter()
+        weights = [1.0, 0.0] if phase == COST else [PHASE1_REGULARIZATION, 1.0]
+        sol = solver(x0=np.clip(x0, lbx, ubx), lbx=lbx, ubx=ubx, p=weights,
+                     lbg=np.zeros(n_eq + 5 * n_p),
+                     ubg=np.concatenate([np.zeros(n_eq), np.full(5 * n_p, np.inf)]))
+        wall = time.perf_counter() - t0
+        stats = solver.stats()
+        xs = np.array(sol["x"]).ravel()
+        return Solution(alpha=xs[:n_a], yaw=float(xs[n_a]) if n_y else 0.0,
+                        v=xs[n_a + n_y:n_a + n_y + n_v].reshape((4 * n, k), order="F"),
+                        status=str(stats["return_status"]), iterations=int(stats["iter_count"]), wall_s=wall,
+                        function_s=sum(v for k, v in stats.items() if k.startswith("t_wall_")))
+
+
+def capsule_ends(positions, rotations, params: ModuleParams) -> np.ndarray:
+    """(3, 2n) capsule axis end points, columns ``2i`` and ``2i + 1`` for module ``i`` (numpy)."""
+    ends = kin.capsule_endpoints(positions, rotations, params)
+    return np.column_stack([e for pair in ends for e in pair])
+
+
+def separating_planes(ends: np.ndarray, pairs: Pairs) -> tuple[np.ndarray, np.ndarray]:
+    """Separating plane (w, c) starting values from the closest points of each pair's segments."""
+    w = np.zeros((3, len(pairs)))
+    c = np.zeros(len(pairs))
+    for idx, (i, j) in enumerate(pairs):
+        p0, p1, q0, q1 = ends[:, 2 * i], ends[:, 2 * i + 1], ends[:, 2 * j], ends[:, 2 * j + 1]
+        _, s, t = kin.segment_distance(p0, p1, q0, q1)
+        a, b = p0 + s * (p1 - p0), q0 + t * (q1 - q0)
+        d = a - b
+        if np.linalg.norm(d) < 1e-9:  # touching axes: separate along the line between module centres
+            d = (p0 + p1) / 2 - (q0 + q1) / 2
+            d[2] = 0.0
+        d = d / max(np.linalg.norm(d), 1e-12)
+        w[:, idx] = d
+        c[idx] = d @ (a + b) / 2
+    return w, c
+
+
+def close_pairs(ends: np.ndarray, threshold: float) -> set[tuple[int, int]]:
+    """Module pairs whose capsule axes are closer than ``threshold``, m."""
+    n = ends.shape[1] // 2
+    out = set()
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = kin.segment_distance(ends[:, 2 * i], ends[:, 2 * i + 1], ends[:, 2 * j], ends[:, 2 * j + 1])[0]
+            if d < threshold:
+                out.add((i, j))
+    return out
