@@ -25,9 +25,9 @@ with quiet_stderr():  # pybullet prints its build date on stderr at import: nois
     import pybullet as pb
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import PreflightReport, Telemetry, applied_command
 from groundstation.control.state import RigidState
-from groundstation.design.task import GRAVITY
 from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 
 

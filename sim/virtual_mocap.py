@@ -14,9 +14,9 @@ from collections import deque
 import numpy as np
 
 from groundstation.control.state import RigidState
+from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.zenoh_link import PosePublisher
 from groundstation.rotations import rotvec_to_matrix
-from groundstation.runtime.loop import LoopActivity
 
 
 class VirtualMocap:

@@ -10,6 +10,9 @@ from pydantic.dataclasses import dataclass
 from groundstation import config
 from groundstation.assembly.motor_map import MotorCommandMap
 
+GRAVITY = 9.81
+"""Standard gravity used throughout (the weight of a module is ``mass * GRAVITY``), m/s^2."""
+
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 

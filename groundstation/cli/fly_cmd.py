@@ -13,8 +13,8 @@ from rich.table import Table
 from groundstation.cli.common import json_safe, stderr_console, writable_output
 from groundstation.errors import UsageError
 from groundstation.flightlog.mcap_log import recover
+from groundstation.loop_activity import LoopActivity
 from groundstation.runtime.flight import Requests
-from groundstation.runtime.loop import LoopActivity
 
 EXIT_EMERGENCY = 1
 STATUS_S = 0.2

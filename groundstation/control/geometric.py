@@ -26,10 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from groundstation.assembly.module import GRAVITY
 from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import euler_zyx, roll_pitch_yaw
-from groundstation.design.task import GRAVITY
 
 E3 = np.array([0.0, 0.0, 1.0])
 

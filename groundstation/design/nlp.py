@@ -44,9 +44,8 @@ import casadi as ca  # noqa: E402
 import numpy as np
 
 from groundstation.assembly import kinematics as kin
-from groundstation.assembly.module import ModuleParams
+from groundstation.assembly.module import GRAVITY, ModuleParams
 from groundstation.assembly.topology import Topology
-from groundstation.design.task import GRAVITY
 
 FEASIBILITY = "feasibility"
 COST = "cost"

@@ -26,10 +26,7 @@ from pydantic import ConfigDict, Field
 from pydantic.dataclasses import dataclass
 
 from groundstation import config
-from groundstation.assembly.module import ModuleParams
-
-GRAVITY = 9.81
-"""Standard gravity used throughout, m/s^2."""
+from groundstation.assembly.module import GRAVITY, ModuleParams
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 

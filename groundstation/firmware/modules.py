@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from groundstation.backends.section import BackendSection
 from groundstation.errors import ConfigError
 from groundstation.firmware.crazyflie_params import check_crazyflie
 from groundstation.firmware.params import ParamCheck, load_param_file
 from groundstation.firmware.px4_params import check_px4
-from groundstation.runtime.flight_config import BackendSection
 
 TOC_CACHE = ".cflib-toc"
 """Directory (in the flight's log directory) keeping cflib's parameter tables of contents between runs."""

@@ -57,8 +57,8 @@ from mcap_protobuf.schema import build_file_descriptor_set
 from groundstation.assembly.assembly import Assembly
 from groundstation.flightlog.scene import module_transforms, scene
 from groundstation.flightlog.schemas import schema_of
+from groundstation.loop_activity import LoopActivity
 from groundstation.rotations import matrix_to_quat
-from groundstation.runtime.loop import LoopActivity
 
 CHUNK_BYTES = 32 * 1024
 FLUSH_S = 1.0

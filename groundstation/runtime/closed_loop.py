@@ -14,11 +14,11 @@ from typing import Literal
 import numpy as np
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.assembly.module import GRAVITY
 from groundstation.control.allocation import allocate_bounded
 from groundstation.control.geometric import Gains, adapt_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.trajectory import FlightPlan
-from groundstation.design.task import GRAVITY
 from groundstation.errors import GroundstationError
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import LoopStats, SimClock

@@ -31,9 +31,9 @@ from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
 from groundstation.errors import ArmingError
+from groundstation.loop_activity import LoopActivity
 from groundstation.runtime.loop import (
     Clock,
-    LoopActivity,
     LoopStats,
     collect_young,
     collector_paused,

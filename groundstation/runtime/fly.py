@@ -41,6 +41,7 @@ from groundstation.errors import ConfigError
 from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog
+from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session, pose_key
 from groundstation.runtime.closed_loop import (
     FlightVolume,
@@ -52,7 +53,7 @@ from groundstation.runtime.closed_loop import (
 )
 from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, Requests
 from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config, mocap_security
-from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopActivity, WallClock, realtime_priority
+from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
 PREFLIGHT_WATCH_S = 1.0

@@ -5,8 +5,8 @@ import time
 
 import pytest
 
+from groundstation.loop_activity import LoopActivity
 from groundstation.runtime.loop import (
-    LoopActivity,
     collect_young,
     collector_paused,
     realtime_priority,
