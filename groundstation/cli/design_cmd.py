@@ -8,18 +8,10 @@ import json
 from pathlib import Path
 
 import click
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.assembly.assembly_file import load_assembly, save_assembly
-from groundstation.assembly.module import ModuleParams, load_module_params
 from groundstation.cli.common import json_safe, progress_bar, stderr_console, writable_output
-from groundstation.design.candidates import read_candidates
-from groundstation.design.enumeration import SamplingPolicy
-from groundstation.design.optimize import SolverOptions
-from groundstation.design.selection import results_table, select
-from groundstation.design.task import load_task
 from groundstation.errors import UsageError
 
 EXIT_INFEASIBLE = 1
@@ -52,6 +44,14 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
                    scheduler: str | None, results: str | None, table: str | None, figures: str | None,
                    out: str | None, as_json: bool) -> int:
     """Find the least-cost feasible configuration with the fewest modules for a task's wrench set."""
+    from groundstation.assembly.assembly_file import save_assembly
+    from groundstation.assembly.module import ModuleParams, load_module_params
+    from groundstation.design.candidates import read_candidates
+    from groundstation.design.enumeration import SamplingPolicy
+    from groundstation.design.optimize import SolverOptions
+    from groundstation.design.selection import results_table, select
+    from groundstation.design.task import load_task
+
     if not 1 <= min_modules <= max_modules:
         raise UsageError(f"need 1 <= --min-modules <= --max-modules, got {min_modules} and {max_modules}")
     if workers < 1:
@@ -114,6 +114,9 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     if out_path is not None:
         save_assembly(out_path, sel.best)
     if fig_dir is not None:
+        import numpy as np
+
+        from groundstation.assembly.assembly_file import load_assembly
         from groundstation.design.figures import plot_assembly, plot_costs, plot_polytope
 
         save_assembly(fig_dir / "best.json", sel.best)

@@ -8,10 +8,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.assembly.lattice import group_matrices
 from groundstation.cli.common import progress_bar, stderr_console, writable_output
-from groundstation.design.candidates import SUFFIXES, write_candidates
-from groundstation.design.enumeration import SCHEMES, Level, SamplingPolicy, enumerate_levels
 from groundstation.errors import UsageError
 
 
@@ -24,7 +21,8 @@ from groundstation.errors import UsageError
 @click.option("--sigma", type=float, default=1.0, show_default=True,
               help="Width of the Gaussian weight on the radius of gyration, in module pitches.")
 @click.option("--scheme", default="compact", show_default=True,
-              help=f"Sampling weights: {', '.join(SCHEMES)}.")
+              help="Sampling weights: compact (the paper's: near the smallest radius of gyration), uniform or "
+                   "spread (near the largest).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the sampling.")
 @click.option("--out", "out", default=None, metavar="FILE",
               help="Write the configurations of every level (.json: readable codes; .npz: compact arrays).")
@@ -34,6 +32,10 @@ from groundstation.errors import UsageError
 def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, scheme: str, seed: int,
                       out: str | None, draw: str | None, as_json: bool) -> None:
     """Enumerate non-isomorphic configurations of 1..N modules on the square lattice."""
+    from groundstation.assembly.lattice import group_matrices
+    from groundstation.design.candidates import SUFFIXES, write_candidates
+    from groundstation.design.enumeration import SamplingPolicy, compile_kernels, enumerate_levels
+
     group_matrices(symmetry)  # validates the name before any work
     sampling = SamplingPolicy(keep=sample, sigma=sigma, scheme=scheme, seed=seed) if sample is not None else None
     if sample is None and (scheme != "compact" or sigma != 1.0 or seed != 0):
@@ -44,7 +46,9 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
         raise UsageError(f"number of modules must be at least 1, got {n}")
 
     console = stderr_console()
-    levels: list[Level] = []
+    with console.status("loading the enumeration kernels (the first run on a machine compiles them, ~10 s)"):
+        compile_kernels()
+    levels = []
     table = Table(title=f"Non-isomorphic configurations ({symmetry}{', sampled' if sampling else ''})")
     for col in ("n", "available", "non-isomorphic", "kept", "CPU s", "peak MiB"):
         table.add_column(col, justify="right")

@@ -12,9 +12,7 @@ from rich.table import Table
 
 from groundstation.cli.common import json_safe, stderr_console, writable_output
 from groundstation.errors import UsageError
-from groundstation.flightlog.mcap_log import recover
 from groundstation.loop_activity import LoopActivity
-from groundstation.runtime.flight import Requests
 
 EXIT_EMERGENCY = 1
 STATUS_S = 0.2
@@ -50,6 +48,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     """Fly a flight config: connect, preflight, arm, take off, track, land.
 
     Ctrl-C (or l) lands; a second Ctrl-C (or k) stops the motors at once."""
+    from groundstation.runtime.flight import Requests
     from groundstation.runtime.fly import fly
 
     log_path = writable_output(log, (".mcap",)) if log else None
@@ -134,6 +133,7 @@ def recover_command(src: str, dst: str) -> int:
     from pathlib import Path
 
     from groundstation.errors import UsageError
+    from groundstation.flightlog.mcap_log import recover
 
     if not Path(src).is_file():
         raise UsageError(f"{src}: file not found")

@@ -5,16 +5,10 @@ from __future__ import annotations
 import json
 
 import click
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.assembly.assembly_file import save_assembly
-from groundstation.assembly.module import ModuleParams, load_module_params
-from groundstation.assembly.topology import Topology, TopologyError
 from groundstation.cli.common import json_safe, writable_output
-from groundstation.design.optimize import SolverOptions, optimize
-from groundstation.design.task import load_task
 from groundstation.errors import UsageError
 
 EXIT_INFEASIBLE = 1
@@ -37,6 +31,12 @@ EXIT_INFEASIBLE = 1
 def optimize_command(tasks: str, code: str, modules: str | None, starts: str, max_starts: int | None, seed: int,
                      fixed_yaw: bool, out: str | None, as_json: bool) -> int:
     """Optimize connector angles and inputs of one configuration for a task's wrench set."""
+    from groundstation.assembly.assembly_file import save_assembly
+    from groundstation.assembly.module import ModuleParams, load_module_params
+    from groundstation.assembly.topology import Topology, TopologyError
+    from groundstation.design.optimize import SolverOptions, optimize
+    from groundstation.design.task import load_task
+
     out_path = writable_output(out, (".json",)) if out else None
     try:
         topo = Topology.from_code(code)
@@ -71,6 +71,8 @@ def optimize_command(tasks: str, code: str, modules: str | None, starts: str, ma
 
 
 def _print_summary(design, task_name: str) -> None:
+    import numpy as np
+
     v = design.verification
     table = Table(title=f"{design.topology.code}: {task_name}", show_header=False)
     table.add_row("status", f"{design.status} ({'feasible' if design.feasible else 'INFEASIBLE'})")

@@ -5,16 +5,11 @@ from __future__ import annotations
 import json
 
 import click
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.assembly.assembly_file import load_assembly
 from groundstation.cli.common import writable_output
-from groundstation.control.geometric import Gains
-from groundstation.control.trajectory import FlightPlan, make_track
 from groundstation.errors import UsageError
-from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
 
 EXIT_CRASHED = 1
 
@@ -39,7 +34,13 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
                      roll: float, control_hz: float, physics_hz: float, allocation: str, noise: bool,
                      realtime: bool, gui: bool, plot: str | None, as_json: bool) -> int:
     """Take off, track a trajectory and land, in PyBullet."""
-    from sim.pybullet_backend import PyBulletBackend, SimConfig  # the simulator is reached on demand only
+    import numpy as np
+
+    from groundstation.assembly.assembly_file import load_assembly
+    from groundstation.control.geometric import Gains
+    from groundstation.control.trajectory import FlightPlan, make_track
+    from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
+    from sim.pybullet_backend import PyBulletBackend, SimConfig
 
     plot_path = writable_output(plot, (".png", ".svg", ".pdf")) if plot else None
     if allocation not in ("clip", "bounded"):
