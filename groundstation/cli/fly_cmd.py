@@ -11,6 +11,7 @@ from rich.live import Live
 from rich.table import Table
 
 from groundstation.cli.common import json_safe, stderr_console, writable_output
+from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
 
@@ -111,10 +112,11 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     if result.log_error is not None:
         click.echo(f"groundstation: the log writer failed: {result.log_error} (what was written reads with "
                    f"groundstation replay, or log recover)", err=True)
-    if result.phase == "done" and result.reason in ("", "operator land") and result.log_error is not None:
+    if result.phase == Phase.DONE and result.reason in ("", "operator land") and result.log_error is not None:
         return EXIT_EMERGENCY
     if not result.nominal:
-        what = {"aborted": "did not start", "done": "landed early"}.get(result.phase, f"ended in {result.phase}")
+        what = {Phase.ABORTED: "did not start", Phase.DONE: "landed early"}.get(result.phase,
+                                                                              f"ended in {result.phase}")
         click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)
         return EXIT_EMERGENCY
     return 0

@@ -12,6 +12,7 @@ from functools import cached_property
 
 import numpy as np
 
+from groundstation.control.phase import Phase
 from groundstation.control.state import Setpoint
 
 TWO_PI = 2.0 * np.pi
@@ -197,14 +198,14 @@ class FlightPlan:
     landing_s: float = 3.0
 
     @cached_property
-    def phases(self) -> tuple[tuple[str, float, float], ...]:
+    def phases(self) -> tuple[tuple[Phase, float, float], ...]:
         """(name, start, end) of each phase, s."""
         t1 = self.takeoff_s
         t2 = t1 + self.settle_s
         t3 = t2 + self.track.duration
         t4 = t3 + self.settle_s
-        return (("takeoff", 0.0, t1), ("settle", t1, t2), ("track", t2, t3), ("hold", t3, t4),
-                ("landing", t4, t4 + self.landing_s))
+        return ((Phase.TAKEOFF, 0.0, t1), (Phase.SETTLE, t1, t2), (Phase.TRACK, t2, t3), (Phase.HOLD, t3, t4),
+                (Phase.LANDING, t4, t4 + self.landing_s))
 
     @property
     def duration(self) -> float:
@@ -267,11 +268,11 @@ class FlightPlan:
         return (Ramp(self.ground, start, self.takeoff_s).bounds().union(tracked)
                 .union(Ramp(end, touchdown, self.landing_s).bounds()))
 
-    def phase_at(self, t: float) -> str:
+    def phase_at(self, t: float) -> Phase:
         for name, a, b in self.phases:
             if a <= t < b:
                 return name
-        return "done"
+        return Phase.DONE
 
 
 def make_track(kind: str, duration: float, height: float, size: float, period: float, roll_deg: float):

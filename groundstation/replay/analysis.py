@@ -21,6 +21,7 @@ from groundstation.assembly.assembly_file import assembly_from_record
 from groundstation.control.allocation import allocate, allocate_bounded
 from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
+from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.errors import ConfigError
 from groundstation.replay.reader import open_log
@@ -29,7 +30,7 @@ from groundstation.runtime.metrics import FlightMetrics
 
 SERIES_POINTS = 20_000
 """Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
-PHASES = ("preflight", "takeoff", "settle", "track", "hold", "landing", "done", "emergency", "aborted")
+PHASES = tuple(Phase)
 
 
 class Decimated:

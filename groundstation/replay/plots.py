@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.control.phase import Phase
 from groundstation.replay.analysis import PHASES, Replay
 
 COLORS = ("tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
@@ -56,7 +57,7 @@ def plot_replays(replays: list[Replay], path: str | Path) -> Path:
     big = [fig.add_subplot(grid[2, 2 * k:2 * k + 2]) for k in range(3)]
     motor_axes = [fig.add_subplot(grid[3, k * 6 // motor_panels:(k + 1) * 6 // motor_panels])
                   for k in range(motor_panels)]
-    track = PHASES.index("track")
+    track = PHASES.index(Phase.TRACK)
     all_pts = []
     for c, r in zip(COLORS * 4, replays, strict=False):
         s = r.series

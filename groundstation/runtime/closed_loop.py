@@ -18,6 +18,7 @@ from groundstation.assembly.module import GRAVITY
 from groundstation.control.allocation import allocate_bounded
 from groundstation.control.geometric import Gains, adapt_attitude
 from groundstation.control.model import ControlModel
+from groundstation.control.phase import Phase
 from groundstation.control.trajectory import FlightPlan
 from groundstation.errors import GroundstationError
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
@@ -138,7 +139,7 @@ def flight_summary(flight: Flight, wall_s: float, planned_s: float, stats: LoopS
     metrics = flight.metrics.result()
     sim_s = metrics["simulated_s"]
     metrics |= {"realtime_factor": sim_s / wall_s if wall_s > 0 else float("inf"), "planned_s": planned_s,
-                "crashed": flight.phase == "emergency", "stalls": flight.stalls}
+                "crashed": flight.phase == Phase.EMERGENCY, "stalls": flight.stalls}
     if stats is not None:
         metrics["loop"] = stats.summary()
     return metrics
@@ -151,5 +152,5 @@ def record_of(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats 
     return FlightRecord(np.array(r.t), np.array(r.position).reshape(-1, 3), np.array(r.rotation).reshape(-1, 3, 3),
                         np.array(r.position_ref).reshape(-1, 3), np.array(r.rotation_desired).reshape(-1, 3, 3),
                         np.array(r.roll_target), np.array(r.motors).reshape(-1, n_rot), np.array(r.phase), wall_s,
-                        flight.phase == "emergency", flight.reason if flight.phase == "emergency" else "",
+                        flight.phase == Phase.EMERGENCY, flight.reason if flight.phase == Phase.EMERGENCY else "",
                         flight_summary(flight, wall_s, planned_s, stats))

@@ -28,6 +28,7 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.control.allocation import allocate, allocate_bounded
 from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
+from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
 from groundstation.errors import ArmingError
@@ -41,7 +42,6 @@ from groundstation.runtime.loop import (
 )
 from groundstation.runtime.metrics import FlightMetrics
 
-AIRBORNE = ("takeoff", "settle", "track", "hold")
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
 RATE_WINDOW_S = 1.0
@@ -136,7 +136,7 @@ class Status:
 
     t: float
     """Flight time, s."""
-    phase: str
+    phase: Phase
     mocap_age: float
     """s"""
     worst_motor: float
@@ -189,7 +189,7 @@ class Flight:
         self._rate_window = (0.0, 0)
         """(loop time s, periods run) at the start of the current rate window."""
         self._rate_hz: float | None = None
-        self.phase = "preflight"
+        self.phase = Phase.PREFLIGHT
         self.reason = ""
         self.metrics = FlightMetrics(assembly.n)
         """Running figures of the flight (bounded memory)."""
@@ -224,9 +224,9 @@ class Flight:
         if self.log is not None:
             self.log.event(level, text, self._log_time(t))
 
-    def _set_phase(self, t: float, phase: str, why: str = "") -> None:
+    def _set_phase(self, t: float, phase: Phase, why: str = "") -> None:
         if phase != self.phase:
-            self._event(t, "warning" if phase in ("emergency", "aborted") else "info",
+            self._event(t, "warning" if phase in (Phase.EMERGENCY, Phase.ABORTED) else "info",
                         f"{self.phase} -> {phase}" + (f": {why}" if why else ""))
             self.phase = phase
 
@@ -235,14 +235,14 @@ class Flight:
         self._last_u = np.zeros_like(self._last_u)
         self._log_motors_off(t)
         self.reason = why
-        self._set_phase(t, "emergency", why)
+        self._set_phase(t, Phase.EMERGENCY, why)
 
     def _begin_landing(self, t: float, from_position: np.ndarray, why: str) -> None:
         ground = np.array(self.plan.ground)
         touchdown = (float(from_position[0]), float(from_position[1]), float(ground[2]) - 0.02)
         self._landing = (t, Ramp(tuple(from_position), touchdown, self.plan.landing_s))
         self.reason = self.reason or why
-        self._set_phase(t, "landing", why)
+        self._set_phase(t, Phase.LANDING, why)
 
     # -- one period -----------------------------------------------------------------------------------------------
     def _stalled(self, t: float) -> bool:
@@ -261,14 +261,14 @@ class Flight:
         return False
 
     def step(self, k: int, t: float) -> bool:
-        if self.phase in ("done", "emergency", "aborted"):
+        if self.phase.final:
             return False
         if self._stalled(t):
             return False
         if self.before_period is not None:
             self.before_period(t)
         if k == 0:
-            self._set_phase(t, "takeoff", "armed")
+            self._set_phase(t, Phase.TAKEOFF, "armed")
         if self.requests.stop.is_set():
             self._emergency(t, "operator stop")
             return False
@@ -283,7 +283,7 @@ class Flight:
             if severe or self.policy.on_link_degraded == "stop":
                 self._emergency(t, degraded)
                 return False
-            if self.phase != "landing" and self.phase in AIRBORNE and state is not None:
+            if self.phase.airborne and state is not None:
                 self._begin_landing(t, state.position, degraded)
         fault = self.pose.fault()
         if fault:
@@ -291,7 +291,7 @@ class Flight:
             if self.policy.on_mocap_fault == "stop" or state is None:
                 self._emergency(t, why)
                 return False
-            if self.phase != "landing" and self.phase in AIRBORNE:
+            if self.phase.airborne:
                 self._begin_landing(t, state.position, why)
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
@@ -301,7 +301,7 @@ class Flight:
             if self.policy.on_mocap_stale == "stop" or state is None:
                 self._emergency(t, why)
                 return False
-            if self.phase != "landing":
+            if self.phase != Phase.LANDING:
                 self._begin_landing(t, state.position, why)
         if telemetry.gyro.size == 3:  # IMU rates beat differentiated mocap for the attitude loop
             state = RigidState(state.position, state.velocity, state.rotation, telemetry.gyro)
@@ -314,13 +314,13 @@ class Flight:
         if state.rotation[2, 2] < self._cos_tilt:
             self._emergency(t, f"tilt beyond {self.policy.max_tilt_deg:g} deg")
             return False
-        if self.requests.land.is_set() and self.phase in AIRBORNE:
+        if self.requests.land.is_set() and self.phase.airborne:
             self._begin_landing(t, self.plan(t).position, "operator land")
         if self.log is not None and self.log.error is not None and not self._log_failure_seen:
             self._log_failure_seen = True
             why = f"log writer failed: {self.log.error}"
             self.events.append((t, "error", why))
-            if self.policy.on_log_failure == "land" and self.phase in AIRBORNE:
+            if self.policy.on_log_failure == "land" and self.phase.airborne:
                 self._begin_landing(t, state.position, why)
         if self._landing is not None:
             t_land, ramp = self._landing
@@ -331,7 +331,7 @@ class Flight:
                 return False
         else:
             phase = self.plan.phase_at(t)
-            if phase == "done":
+            if phase == Phase.DONE:
                 self._finish(t)
                 return False
             self._set_phase(t, phase)
@@ -374,7 +374,7 @@ class Flight:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
         self._last_u = np.zeros_like(self._last_u)
         self._log_motors_off(t)
-        self._set_phase(t, "done", "landed")
+        self._set_phase(t, Phase.DONE, "landed")
 
     def _record(self, t, state, sp, out, u, age, telemetry) -> None:
         truth = self.truth() if self.truth is not None else None
@@ -469,7 +469,7 @@ class Flight:
             except ArmingError as exc:
                 self.backend.disarm()
                 self.reason = str(exc)
-                self._set_phase(0.0, "aborted", f"arming failed: {exc}")
+                self._set_phase(0.0, Phase.ABORTED, f"arming failed: {exc}")
                 return self._stats
             self.backend.telemetry()
             self.pose.state()
@@ -481,7 +481,7 @@ class Flight:
         finally:
             if activity is not None:
                 activity.end()  # no more periods: background threads may work freely
-            if self.phase not in ("done", "emergency", "aborted"):
+            if not self.phase.final:
                 self._emergency(self._t_last(), "loop ended")
         if self.log is not None:
             self.log.record("/loop/timing", stats.summary(), self._log_time(self._t_last()))

@@ -36,6 +36,7 @@ from groundstation.backends.mavlink import MavlinkBackend, MavlinkSettings
 from groundstation.backends.radio_budget import radio_budget_issues
 from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
+from groundstation.control.phase import Phase
 from groundstation.control.trajectory import FlightPlan, make_track
 from groundstation.errors import ConfigError
 from groundstation.firmware.modules import check_modules, required_params
@@ -81,7 +82,7 @@ class Faults:
 @dataclass
 class FlyResult:
     log_path: Path
-    phase: str
+    phase: Phase
     """Final state: ``done`` (landed, disarmed), ``emergency`` (motors stopped) or ``aborted`` (never armed)."""
     reason: str
     """Why the flight ended early ("" when it flew its plan; "operator land" when the operator cut it short)."""
@@ -93,7 +94,7 @@ class FlyResult:
     @property
     def nominal(self) -> bool:
         """Landed as planned or as the operator asked, with a complete log; a failsafe landing is not nominal."""
-        return self.phase == "done" and self.reason in ("", "operator land") and self.log_error is None
+        return self.phase == Phase.DONE and self.reason in ("", "operator land") and self.log_error is None
 
 
 MOCAP_STATS_S = 1.0
@@ -338,7 +339,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
             sys.setswitchinterval(switch)
             if restore is not None:
                 restore()
-        ended_cleanly[0] = flight.phase in ("done", "aborted")
+        ended_cleanly[0] = flight.phase in (Phase.DONE, Phase.ABORTED)
         metrics = flight_summary(flight, time.perf_counter() - wall0, plan.duration, stats)
         log.record("/flight/summary", {k: v for k, v in metrics.items() if k != "loop"} | {
             "phase": flight.phase, "reason": flight.reason}, to_log(time.monotonic()))

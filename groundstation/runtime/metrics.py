@@ -12,9 +12,11 @@ import math
 
 import numpy as np
 
+from groundstation.control.phase import Phase
 from groundstation.rotations import rotation_angle
 
-AIRBORNE = ("settle", "track", "hold")
+MEASURED = (Phase.SETTLE, Phase.TRACK, Phase.HOLD)
+"""Phases whose tracking error the metrics report (takeoff and landing follow their own ramps)."""
 """Phases over which attitude errors and saturation count (take-off and landing ramps excluded)."""
 SATURATED = 0.999
 """A rotor at this fraction of u_max or more, or at the complement or less, is saturated (at a bound)."""
@@ -118,13 +120,13 @@ class FlightMetrics:
             self.t_first = t
         self.periods += 1
         self.t_last = t
-        if phase == "track":
+        if phase == Phase.TRACK:
             self.position.add(np.asarray(position, float) - np.asarray(position_ref, float))
         m = np.asarray(motors, float)
         self.max_motor = max(self.max_motor, float(m.max()) if m.size else 0.0)
         if mocap_age is not None and math.isfinite(mocap_age):
             self.mocap_age.add(mocap_age)
-        if phase in AIRBORNE:
+        if phase in MEASURED:
             self.airborne += 1
             r = np.asarray(rotation, float)
             self.orientation.add(math.degrees(float(rotation_angle(r, np.asarray(rotation_target, float)))))

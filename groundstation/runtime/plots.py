@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.control.phase import Phase
 from groundstation.rotations import rotation_angle
 from groundstation.runtime.closed_loop import FlightRecord
 
@@ -43,7 +44,7 @@ def plot_flight(rec: FlightRecord, path: str | Path, title: str, u_max: float) -
     axes[2].legend(fontsize=8)
     for ax in axes:
         ax.grid(alpha=0.3)
-        for name in ("settle", "track", "hold", "landing"):
+        for name in (Phase.SETTLE, Phase.TRACK, Phase.HOLD, Phase.LANDING):
             starts = t[np.argmax(rec.phase == name)] if np.any(rec.phase == name) else None
             if starts is not None:
                 ax.axvline(starts, color="grey", lw=0.6, ls=":")
