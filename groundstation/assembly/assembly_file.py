@@ -17,8 +17,8 @@ import numpy as np
 from groundstation import config
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import ModuleParams
-from groundstation.assembly.topology import Topology, TopologyError
-from groundstation.errors import ConfigError
+from groundstation.assembly.topology import Topology
+from groundstation.errors import ConfigError, TopologyError
 
 FORMAT = "groundstation.assembly/1"
 POSE_TOLERANCE = 1e-6

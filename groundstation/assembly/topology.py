@@ -27,13 +27,9 @@ from functools import cached_property
 import numpy as np
 
 from groundstation.assembly.lattice import DIRECTION_LETTERS, DIRECTIONS, connector_between, group_matrices
-from groundstation.errors import GroundstationError
+from groundstation.errors import TopologyError
 
 FREE, CONNECTED, BLOCKED, CENTRE = 1, 2, 3, 6
-
-
-class TopologyError(GroundstationError, ValueError):
-    """The cells and edges given do not form a tree of adjacent lattice modules."""
 
 
 Cell = tuple[int, int]

@@ -9,10 +9,13 @@ on every other path (real modules latch it until they are rebooted).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
+
+from groundstation.control.state import RigidState
 
 
 @dataclass(frozen=True)
@@ -74,3 +77,57 @@ class Backend(Protocol):
     def disarm(self) -> None: ...
     def emergency_stop(self) -> None: ...
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class SimulatedBackend(Backend, Protocol):
+    """A backend that owns simulated time and knows the true state (PyBullet): what lockstep simulation
+    (:class:`~groundstation.runtime.loop.SimClock`), truth logging and fault drills use."""
+
+    link_ok: bool
+    """Set False to inject a link loss (telemetry reports it; the flight must stop the motors)."""
+
+    @property
+    def time(self) -> float:
+        """Simulated time, s."""
+        ...
+
+    @property
+    def measurement_latency(self) -> float:
+        """Age of :meth:`measured_state`, s."""
+        ...
+
+    def advance_to(self, t: float) -> None: ...
+    def true_state(self) -> RigidState: ...
+    def measured_state(self) -> RigidState:
+        """The state as a sensor reports it (delayed by ``measurement_latency``, with noise)."""
+        ...
+
+
+class BackendBase(ABC):
+    """What every backend shares: ``armed``, and ``with backend:`` connects and, on the way out, stops the motors
+    of an armed backend (an exception inside the block must not leave rotors spinning) and closes its links."""
+
+    _armed: bool = False
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @abstractmethod
+    def connect(self) -> None: ...
+
+    @abstractmethod
+    def emergency_stop(self) -> None: ...
+
+    @abstractmethod
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._armed:
+            self.emergency_stop()
+        self.close()

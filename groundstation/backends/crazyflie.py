@@ -40,8 +40,8 @@ from cflib.crtp.crtpstack import CRTPPacket
 
 from groundstation.assembly.module import ModuleParams
 from groundstation.backends import crtp_wire as wire
-from groundstation.backends.base import PreflightReport, Telemetry, applied_command, body_rate
-from groundstation.errors import ArmingError, BackendError
+from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
+from groundstation.errors import ArmingError, LinkError
 
 ARM_RETRY_S = 0.05
 """Interval between repeats of an unanswered supervisor request, s."""
@@ -54,10 +54,6 @@ MIN_LOSS_SAMPLES = 10
 PREFLIGHT_EXCHANGE_S = 1.0
 """Preflight streams disarmed zeros this long and judges the loss over all of it (250 commands at 250 Hz: a link
 losing 2 % shows over 10 % with probability below 1e-9), s."""
-
-
-class CrazyflieLinkError(BackendError):
-    """A module's link could not be opened (no dongle, bad address)."""
 
 
 _drivers_ready = threading.Lock()
@@ -83,9 +79,9 @@ def _link_driver(uri: str, on_error):
     try:
         driver = cflib.crtp.get_link_driver(uri, link_error_callback=on_error)
     except Exception as exc:  # driver-specific errors (no dongle, bad address)
-        raise CrazyflieLinkError(f"cannot open {uri}: {exc}") from None
+        raise LinkError(f"cannot open {uri}: {exc}") from None
     if driver is None:
-        raise CrazyflieLinkError(f"cannot open {uri}: no cflib driver accepts this URI")
+        raise LinkError(f"cannot open {uri}: no cflib driver accepts this URI")
     return driver
 
 
@@ -208,7 +204,7 @@ class _Module:
         """Round trips of the newest states that echoed a new sequence, s."""
 
 
-class CrazyflieBackend:
+class CrazyflieBackend(BackendBase):
     """``n`` Crazyflie modules of one assembly, in assembly order (module i drives rotors 4i..4i+3)."""
 
     def __init__(self, uris: list[str] | tuple[str, ...], module: ModuleParams, module_rotations: np.ndarray,
@@ -251,7 +247,7 @@ class CrazyflieBackend:
             for i, uri in enumerate(self.uris):
                 driver = _link_driver(uri, lambda msg, uri=uri: self._errors.append(f"{uri}: {msg}"))
                 self._modules.append(_Module(driver, _sender_for(driver, f"m{i}")))
-        except CrazyflieLinkError:
+        except LinkError:
             self.close()
             raise
         self._send_all(np.zeros((len(self.uris), 4)), armed=False)
@@ -386,14 +382,6 @@ class CrazyflieBackend:
             m.driver.close()
         self._modules = []
 
-    def __enter__(self) -> CrazyflieBackend:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self._modules and self._armed:
-            self.emergency_stop()
-        self.close()
 
     # -- measurements -------------------------------------------------------------------------------------------
     @property

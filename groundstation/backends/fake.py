@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from groundstation.backends.base import PreflightReport, Telemetry, applied_command
+from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command
 
 
-class FakeBackend:
+class FakeBackend(BackendBase):
     """Records every command; enforces the same rules as a real backend (bounds, arming, stop)."""
 
     def __init__(self, n_modules: int, u_max: float) -> None:
@@ -51,10 +51,3 @@ class FakeBackend:
     def close(self) -> None:
         self._connected = False
 
-    def __enter__(self) -> FakeBackend:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.emergency_stop()
-        self.close()

@@ -28,18 +28,10 @@ import numpy as np
 from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.backends.base import PreflightReport, Telemetry, applied_command, body_rate
-from groundstation.errors import ArmingError, BackendError
+from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
+from groundstation.errors import ArmingError, LinkError
 
 mav = mavutil.mavlink
-
-
-class MavlinkLinkError(BackendError):
-    """A module's MAVLink connection could not be opened."""
-
-
-class MavlinkArmError(ArmingError):
-    """A module did not switch to offboard or did not arm."""
 
 
 @dataclass(frozen=True)
@@ -96,7 +88,7 @@ class _Module:
         self.pending_sent = -np.inf
 
 
-class MavlinkBackend:
+class MavlinkBackend(BackendBase):
     """``n`` PX4 modules of one assembly, in assembly order (module i drives rotors 4i..4i+3)."""
 
     def __init__(self, links: list[str] | tuple[str, ...], u_max: float, module_rotations: np.ndarray,
@@ -127,7 +119,7 @@ class MavlinkBackend:
                                                   source_component=mw.GCS_COMPONENT_ID)
             except Exception as exc:  # pymavlink raises per transport (serial, socket, bad string)
                 self.close()
-                raise MavlinkLinkError(f"cannot open {link}: {exc}") from None
+                raise LinkError(f"cannot open {link}: {exc}") from None
             self._modules.append(_Module(conn))
         self._heartbeat(force=True)
 
@@ -160,7 +152,7 @@ class MavlinkBackend:
         return PreflightReport(not issues, tuple(issues))
 
     def arm(self) -> None:
-        """Switch every module to offboard and arm it; raises MavlinkArmError (motors off) unless all confirm."""
+        """Switch every module to offboard and arm it; raises ArmingError (motors off) unless all confirm."""
         deadline = self._clock() + self.settings.arm_timeout
         while self._clock() < deadline and any(m.system_id is None for m in self._modules):
             self._heartbeat(force=True)  # a module learns where we are from our first packet
@@ -168,7 +160,7 @@ class MavlinkBackend:
             self._drain()
         for i, m in enumerate(self._modules):
             if m.system_id is None:
-                raise MavlinkArmError(f"module {i} ({self.links[i]}): no heartbeat within "
+                raise ArmingError(f"module {i} ({self.links[i]}): no heartbeat within "
                                       f"{self.settings.arm_timeout:g} s")
         lead_end = self._clock() + SETPOINT_LEAD_S
         while self._clock() < lead_end:  # PX4 enters offboard only once setpoints stream
@@ -239,14 +231,6 @@ class MavlinkBackend:
         """Modules that have not acknowledged the stop or disarm sent to them."""
         return [i for i, m in enumerate(self._modules) if m.pending]
 
-    def __enter__(self) -> MavlinkBackend:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self._modules and self._armed:
-            self.emergency_stop()
-        self.close()
 
     # -- wire ---------------------------------------------------------------------------------------------------
     def _heartbeat(self, force: bool = False) -> None:
@@ -310,11 +294,11 @@ class MavlinkBackend:
             self._drain()
         for i, m in enumerate(self._modules):
             if command not in m.acks:
-                raise MavlinkArmError(f"module {i} ({self.links[i]}): no answer to '{what}' within "
+                raise ArmingError(f"module {i} ({self.links[i]}): no answer to '{what}' within "
                                       f"{self.settings.arm_timeout:g} s")
             if m.acks[command] != mav.MAV_RESULT_ACCEPTED:
                 result = mav.enums["MAV_RESULT"][m.acks[command]].name
-                raise MavlinkArmError(f"module {i} ({self.links[i]}) refused to {what}: {result}")
+                raise ArmingError(f"module {i} ({self.links[i]}) refused to {what}: {result}")
 
     def _drain(self) -> None:
         now = self._clock()

@@ -9,7 +9,7 @@ from rich.console import Console
 from rich.table import Table
 
 from groundstation.cli.common import json_safe, writable_output
-from groundstation.errors import UsageError
+from groundstation.errors import TopologyError, UsageError
 
 EXIT_INFEASIBLE = 1
 
@@ -33,7 +33,7 @@ def optimize_command(tasks: str, code: str, modules: str | None, starts: str, ma
     """Optimize connector angles and inputs of one configuration for a task's wrench set."""
     from groundstation.assembly.assembly_file import save_assembly
     from groundstation.assembly.module import ModuleParams, load_module_params
-    from groundstation.assembly.topology import Topology, TopologyError
+    from groundstation.assembly.topology import Topology
     from groundstation.design.optimize import SolverOptions, optimize
     from groundstation.design.task import load_task
 

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from groundstation.assembly.topology import Topology, TopologyError
+from groundstation.assembly.topology import Topology
 from groundstation.design.enumeration import Level, SamplingPolicy
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, TopologyError
 
 FORMAT = "groundstation.candidates/1"
 SUFFIXES = (".json", ".npz")

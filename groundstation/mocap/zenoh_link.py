@@ -16,13 +16,9 @@ import numpy as np
 import zenoh
 
 from groundstation.control.state import RigidState
-from groundstation.errors import GroundstationError
+from groundstation.errors import SessionError
 from groundstation.mocap.codec import PoseSample, decode, encode
 from groundstation.rotations import matrix_to_rotvec, rotation_angle, rotvec_to_matrix
-
-
-class LinkError(GroundstationError):
-    """A Zenoh session could not be opened (endpoint in use, malformed, unreachable)."""
 
 
 @dataclass(frozen=True)
@@ -64,7 +60,7 @@ def open_session(listen: list[str] | None = None, connect: list[str] | None = No
     try:
         return zenoh.open(cfg)
     except Exception as exc:  # zenoh raises ZError carrying the transport's reason
-        raise LinkError(f"cannot open Zenoh session (listen {listen}, connect {connect}): {exc}") from None
+        raise SessionError(f"cannot open Zenoh session (listen {listen}, connect {connect}): {exc}") from None
 
 
 def pose_key(prefix: str, body: str) -> str:

@@ -15,20 +15,17 @@ import numpy as np
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
+from groundstation.backends.base import SimulatedBackend
 from groundstation.control.allocation import allocate_bounded
 from groundstation.control.geometric import Gains, adapt_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.trajectory import FlightPlan
-from groundstation.errors import GroundstationError
+from groundstation.errors import PreflightError
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import LoopStats, SimClock
 
 AllocationMode = Literal["clip", "bounded"]
-
-
-class PreflightError(GroundstationError):
-    """The flight must not start (the assembly cannot hover, the plan leaves the flight volume, ...)."""
 
 
 @dataclass(frozen=True)
@@ -113,7 +110,7 @@ def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float) -> N
         raise PreflightError("the trajectory is beyond the assembly: " + "; ".join(issues))
 
 
-def fly_simulated(assembly: Assembly, plan: FlightPlan, backend, gains: Gains | None = None,
+def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBackend, gains: Gains | None = None,
                   control_hz: float = 250.0, allocation: AllocationMode = "clip",
                   volume: FlightVolume | None = None, policy: FailsafePolicy | None = None,
                   log=None) -> FlightRecord:

@@ -25,6 +25,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.backends.base import Backend, SimulatedBackend
 from groundstation.control.allocation import allocate, allocate_bounded
 from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
@@ -73,14 +74,14 @@ class MocapIntegrity:
 class PhysicsPoseSource:
     """State straight from a simulated backend (with its configured noise and latency)."""
 
-    def __init__(self, backend) -> None:
+    def __init__(self, backend: SimulatedBackend) -> None:
         self._backend = backend
 
     def state(self) -> RigidState | None:
         return self._backend.measured_state()
 
     def age(self) -> float:
-        return self._backend.config.latency
+        return self._backend.measurement_latency
 
     def set_body_rate(self, omega: np.ndarray | None) -> None:
         pass
@@ -169,9 +170,9 @@ class Recording:
 class Flight:
     """One flight of one assembly; :meth:`run` flies it on a clock and returns what happened."""
 
-    def __init__(self, assembly: Assembly, plan: FlightPlan, backend, pose: PoseSource, *, gains: Gains | None = None,
-                 allocation: Literal["clip", "bounded"] = "clip", policy: FailsafePolicy | None = None,
-                 log=None, requests: Requests | None = None,
+    def __init__(self, assembly: Assembly, plan: FlightPlan, backend: Backend, pose: PoseSource, *,
+                 gains: Gains | None = None, allocation: Literal["clip", "bounded"] = "clip",
+                 policy: FailsafePolicy | None = None, log=None, requests: Requests | None = None,
                  before_period: Callable[[float], None] | None = None, truth=None, on_status=None,
                  activity: LoopActivity | None = None, record: bool = False,
                  to_log_time: Callable[[float], float] | None = None) -> None:

@@ -19,6 +19,8 @@ from typing import Protocol
 
 import numpy as np
 
+from groundstation.backends.base import SimulatedBackend
+
 SPIN_S = 0.0015
 """Last part of each wait spent spinning instead of sleeping, s (normal scheduling: wake-up can be late)."""
 SPIN_RT_S = 0.0002
@@ -50,7 +52,7 @@ class WallClock:
 class SimClock:
     """Simulated time of a backend with ``time`` and ``advance_to`` (lockstep)."""
 
-    def __init__(self, backend) -> None:
+    def __init__(self, backend: SimulatedBackend) -> None:
         self._backend = backend
 
     def now(self) -> float:

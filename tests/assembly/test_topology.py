@@ -4,7 +4,8 @@ from hypothesis import given, settings
 
 from benchmarks.enumeration_baseline import _group, canonical
 from groundstation.assembly.lattice import GROUPS
-from groundstation.assembly.topology import Topology, TopologyError
+from groundstation.assembly.topology import Topology
+from groundstation.errors import TopologyError
 from tests.strategies import lattice_trees
 
 

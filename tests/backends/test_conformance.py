@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from groundstation.assembly.assembly_file import load_assembly
-from groundstation.backends.base import Backend
+from groundstation.backends.base import Backend, SimulatedBackend
 from groundstation.backends.crazyflie import CrazyflieBackend
 from groundstation.backends.fake import FakeBackend
 from groundstation.backends.mavlink import MavlinkBackend
 from sim.crazyflie_peer import SimulatedCrazyflies
 from sim.mavlink_peer import SimulatedPx4
 from sim.module_peer import PeerConfig
+from sim.pybullet_backend import PyBulletBackend
 
 ROOT = Path(__file__).resolve().parents[2]
 ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
@@ -26,8 +27,6 @@ def make_fake():
 
 
 def make_sim():
-    from sim.pybullet_backend import PyBulletBackend
-
     return PyBulletBackend(ASM)
 
 
@@ -140,3 +139,16 @@ def test_wrong_command_size_is_an_error(backend):
     backend.arm()
     with pytest.raises(ValueError):
         backend.send(np.zeros(5))
+
+
+def test_leaving_the_block_on_an_error_stops_an_armed_backend(backend):
+    backend.arm()
+    backend.send(np.full(8, 0.5 * U_MAX))
+    assert applied(backend).min() > 0.45 * U_MAX
+    error = RuntimeError("operator code failed")
+    backend.__exit__(RuntimeError, error, None)  # the fixture's ``with backend:`` block ending in this error
+    assert not backend.armed  # the emergency stop ran before the links closed
+
+
+def test_only_the_simulator_is_a_simulated_backend(backend):
+    assert isinstance(backend, SimulatedBackend) == isinstance(backend, PyBulletBackend)

@@ -8,8 +8,8 @@ import pytest
 from cflib.crtp.crtpstack import CRTPPacket
 
 from groundstation.backends import crtp_wire as wire
-from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieLinkError, CrazyflieSettings
-from groundstation.errors import ArmingError
+from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
+from groundstation.errors import ArmingError, LinkError
 from sim.crazyflie_peer import SimulatedCrazyflies
 from tests import peers
 from tests.peers import ASM, U_MAX, hold, stop_peer
@@ -152,7 +152,7 @@ def test_preflight_names_silent_weak_and_stock_modules():
 
 
 def test_unopenable_link():
-    with pytest.raises(CrazyflieLinkError, match="cannot open radio://0/80/2M/E7E7E7E701"):
+    with pytest.raises(LinkError, match="cannot open radio://0/80/2M/E7E7E7E701"):
         CrazyflieBackend(["radio://0/80/2M/E7E7E7E701"], ASM.params, ASM.module_rotations[:1]).connect()
     with pytest.raises(ValueError, match="2 links for 1 modules"):
         CrazyflieBackend(["udp://127.0.0.1:1", "udp://127.0.0.1:2"], ASM.params, ASM.module_rotations[:1])

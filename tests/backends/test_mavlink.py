@@ -9,13 +9,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.backends.mavlink import (
-    ARM_GRACE_S,
-    MavlinkArmError,
-    MavlinkBackend,
-    MavlinkLinkError,
-    MavlinkSettings,
-)
+from groundstation.backends.mavlink import ARM_GRACE_S, MavlinkBackend, MavlinkSettings
+from groundstation.errors import ArmingError, LinkError
 from sim.mavlink_peer import SimulatedPx4
 from tests import peers
 from tests.peers import ASM, U_MAX, hold, stop_peer
@@ -62,7 +57,7 @@ def test_commands_reach_the_modules_and_the_state_comes_back():
             peers.check_commands_and_state(be, peer)  # ATTITUDE rates arrive in PX4's FRD frame
             assert be.preflight().issues == ("module 0 is flight-terminated (reboot it)",
                                              "module 1 is flight-terminated (reboot it)")
-            with pytest.raises(MavlinkArmError, match="module 0 .* refused to switch to offboard"):
+            with pytest.raises(ArmingError, match="module 0 .* refused to switch to offboard"):
                 be.arm()  # termination latches
     finally:
         stop_peer(peer, th)
@@ -126,7 +121,7 @@ def test_preflight_and_arm_name_silent_and_weak_modules():
     with MavlinkBackend(links(14616), U_MAX, ASM.module_rotations, settings) as be:
         assert be.preflight().issues == ("module 0 (udpout:127.0.0.1:14616) does not answer",
                                          "module 1 (udpout:127.0.0.1:14617) does not answer")
-        with pytest.raises(MavlinkArmError, match=r"module 0 \(udpout:127.0.0.1:14616\): no heartbeat within 0.3 s"):
+        with pytest.raises(ArmingError, match=r"module 0 \(udpout:127.0.0.1:14616\): no heartbeat within 0.3 s"):
             be.arm()
     peer, th = start_peer(14618, 7484, battery_v=3.3)
     try:
@@ -137,7 +132,7 @@ def test_preflight_and_arm_name_silent_and_weak_modules():
 
 
 def test_unopenable_link():
-    with pytest.raises(MavlinkLinkError, match="cannot open /dev/ttyNOPE"):
+    with pytest.raises(LinkError, match="cannot open /dev/ttyNOPE"):
         MavlinkBackend(["/dev/ttyNOPE,57600"], U_MAX, ASM.module_rotations[:1]).connect()
     with pytest.raises(ValueError, match="2 links for 1 modules"):
         MavlinkBackend(["udpout:127.0.0.1:1", "udpout:127.0.0.1:2"], U_MAX, ASM.module_rotations[:1])

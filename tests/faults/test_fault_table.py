@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from groundstation.errors import PreflightError
 from groundstation.replay.analysis import analyse
-from groundstation.runtime.closed_loop import PreflightError
 from groundstation.runtime.fly import fly
 from tests.peers import ROOT
 from tests.runtime.test_fly import config_with, read_log, sitl_config

@@ -3,7 +3,8 @@ import time
 import numpy as np
 import pytest
 
-from groundstation.mocap.zenoh_link import LinkError, PosePublisher, PoseSubscriber, open_session
+from groundstation.errors import SessionError
+from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, open_session
 
 
 @pytest.fixture
@@ -38,5 +39,5 @@ def test_newest_sample_velocity_and_jump_rejection(sessions):
 
 
 def test_unopenable_endpoint():
-    with pytest.raises(LinkError):
+    with pytest.raises(SessionError):
         open_session(listen=["tcp/256.1.1.1:1"])

@@ -8,7 +8,8 @@ from groundstation.assembly.assembly_file import load_assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.control.trajectory import Attitude, Figure8, FlightPlan, Hover
-from groundstation.runtime.closed_loop import FlightVolume, PreflightError, fly_simulated
+from groundstation.errors import PreflightError
+from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
 from sim.pybullet_backend import PyBulletBackend
 
 ROOT = Path(__file__).resolve().parents[2]
