@@ -26,7 +26,7 @@ with quiet_stderr():  # pybullet prints its build date on stderr at import: nois
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
-from groundstation.backends.base import PreflightReport, Telemetry, applied_command
+from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command
 from groundstation.control.state import RigidState
 from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 
@@ -52,16 +52,7 @@ class SimConfig:
     seed: int = 0
 
 
-def resting_height(assembly: Assembly) -> float:
-    """COM height at which the lowest module corner touches the ground (body frame level), m."""
-    hx, hy, hz = assembly.params.frame_half_extents
-    corners = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-    lowest = min(float(np.min((p + corners @ r.T)[:, 2]))
-                 for p, r in zip(assembly.module_positions, assembly.module_rotations, strict=True))
-    return -lowest
-
-
-class PyBulletBackend:
+class PyBulletBackend(BackendBase):
     """Physics simulation of one assembly behind the Backend protocol."""
 
     def __init__(self, assembly: Assembly, config: SimConfig | None = None,
@@ -69,7 +60,7 @@ class PyBulletBackend:
         self.assembly = assembly
         self.config = config or SimConfig()
         self._rng = np.random.default_rng(self.config.seed)
-        ground = (0.0, 0.0, resting_height(assembly))
+        ground = (0.0, 0.0, assembly.resting_height)
         self.start_position = np.array(start_position if start_position is not None else ground, dtype=float)
         self._client: int | None = None
         self._body = -1
@@ -159,15 +150,13 @@ class PyBulletBackend:
             pb.disconnect(physicsClientId=self._client)
             self._client = None
 
-    def __enter__(self) -> PyBulletBackend:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.emergency_stop()
-        self.close()
 
     # -- simulation ---------------------------------------------------------------------------------------------
+    @property
+    def measurement_latency(self) -> float:
+        """Age of :meth:`measured_state`, s."""
+        return self.config.latency
+
     @property
     def time(self) -> float:
         """Simulated time, s."""

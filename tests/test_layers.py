@@ -1,4 +1,5 @@
-"""The package's layers: no import cycles between subpackages, counting imports made inside functions too.
+"""The package's layers: no import cycles between subpackages, counting imports made inside functions too (not
+those under ``if TYPE_CHECKING:``, which never run).
 
 A cycle makes the import order matter and ties layers that should change independently (issue 14 removed four:
 assembly -> design, flightlog -> runtime, firmware -> runtime, sim <-> runtime).
@@ -19,9 +20,20 @@ def _layer(module: str) -> str:
     return ".".join(parts[:2]) if parts[0] == "groundstation" else parts[0]
 
 
+def _type_only(tree: ast.Module) -> set[int]:
+    """ids of the statements inside ``if TYPE_CHECKING:`` blocks: imports for annotations, never executed."""
+    return {id(n) for block in ast.walk(tree) if isinstance(block, ast.If)
+            and isinstance(block.test, ast.Name) and block.test.id == "TYPE_CHECKING"
+            for stmt in block.body for n in ast.walk(stmt)}
+
+
 def _imports(path: Path, module: str) -> set[str]:
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    skip = _type_only(tree)
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom):

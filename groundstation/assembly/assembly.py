@@ -90,6 +90,16 @@ class Assembly:
         return total
 
     @cached_property
+    def resting_height(self) -> float:
+        """COM height at which the lowest module corner touches the ground (body frame level), m: where a flight
+        plan starts when no mocap has seen the assembly yet."""
+        hx, hy, hz = self.params.frame_half_extents
+        corners = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        lowest = min(float(np.min((p + corners @ r.T)[:, 2]))
+                     for p, r in zip(self.module_positions, self.module_rotations, strict=True))
+        return -lowest
+
+    @cached_property
     def controllable_dof(self) -> int:
         """Rank of the allocation matrix: 6 for a fully actuated assembly, 4 for a flat one."""
         return int(np.linalg.matrix_rank(self.allocation / np.abs(self.allocation).max(), tol=1e-9))

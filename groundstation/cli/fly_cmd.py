@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from groundstation.backend_kinds import KINDS, load
 from groundstation.cli.common import json_safe, stderr_console, writable_output
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
@@ -178,11 +179,14 @@ def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key
     return 0
 
 
+PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
+"""Backend kinds ``sim-peer`` can simulate, by protocol name."""
+
+
 @click.command("sim-peer")
 @click.argument("assembly", type=click.Path(dir_okay=False))
-@click.option("--protocol", type=click.Choice(["crtp", "mavlink"]), default="crtp", show_default=True,
-              help="crtp: Crazyflie modules (fly with backend crazyflie); mavlink: PX4 modules in offboard mode "
-                   "(fly with backend mavlink).")
+@click.option("--protocol", type=click.Choice(list(PEERS)), default="crtp", show_default=True,
+              help="; ".join(f"{p}: {k.summary} (fly with backend {k.name})" for p, k in PEERS.items()) + ".")
 @click.option("--port", type=int, default=19850, show_default=True,
               help="UDP port of module 0; module i listens on port + i.")
 @click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
@@ -211,12 +215,8 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     from groundstation.mocap.zenoh_link import pose_key
     from sim.module_peer import PeerConfig
 
-    if protocol == "crtp":
-        from sim.crazyflie_peer import SimulatedCrazyflies as peer_class
-        scheme = "udp://"
-    else:
-        from sim.mavlink_peer import SimulatedPx4 as peer_class
-        scheme = "udpout:"
+    kind = PEERS[protocol]
+    peer_class, scheme = load(kind.peer), kind.peer_scheme
     asm, _ = load_assembly(assembly)
     params = tuple(load_param_file(param_file).items()) if param_file else ()
     peer = peer_class(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),

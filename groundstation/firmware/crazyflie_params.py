@@ -124,3 +124,13 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
         return checks
     finally:
         cf.close_link()
+
+
+TOC_CACHE = ".cflib-toc"
+"""Directory (in the flight's log directory) keeping cflib's parameter tables of contents between runs."""
+
+
+def check_module(uri: str, module: int, wanted: dict[str, float], apply: bool,
+                 cache_dir: Path | None) -> list[ParamCheck]:
+    """:func:`check_crazyflie` as the backend table calls it, the tables of contents kept in ``cache_dir``."""
+    return check_crazyflie(uri, module, wanted, apply, toc_cache=cache_dir / TOC_CACHE if cache_dir else None)

@@ -7,6 +7,7 @@ goes unanswered is repeated (MAVLink over UDP or a radio may drop a packet).
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 from pymavlink import mavutil
 
@@ -83,3 +84,15 @@ def check_px4(link: str, module: int, wanted: dict[str, float], apply: bool = Fa
         return checks
     finally:
         conn.close()
+
+
+def check_module(link: str, module: int, wanted: dict[str, float], apply: bool,
+                 cache_dir: Path | None) -> list[ParamCheck]:
+    """:func:`check_px4` as the backend table calls it. ``cache_dir`` is not used: PX4 answers each parameter by
+    name, there is no table of contents to keep."""
+    return check_px4(link, module, wanted, apply)
+
+
+def pwm_params(section) -> dict[str, float]:
+    """The PWM range a flight config's ``backend`` section assumes (``pwm_min``, ``pwm_max``, us)."""
+    return {"PWM_MAIN_MIN": float(section.pwm_min), "PWM_MAIN_MAX": float(section.pwm_max)}

@@ -1,11 +1,12 @@
 """``fly``: load a flight config, connect, check, arm, take off, track, land, disarm; log everything to MCAP.
 
-Backends: ``sim`` runs PyBullet inside this process and publishes its physics pose over Zenoh through a virtual
-mocap, so a dry run exercises the same loop, Zenoh path and logging as a flight with real mocap; the simulator is
-advanced to the wall time at the start of every period. ``crazyflie`` drives one cflib link per module (radio
-or UDP) and ``mavlink`` one pymavlink connection per PX4 module; both take poses from whatever publishes them on
-Zenoh: a mocap bridge, or ``groundstation sim-peer``, which simulates the modules behind their real wire protocol
-in another process.
+The backend kind (:mod:`groundstation.backend_kinds`) names the world the flight flies in: ``sim`` runs PyBullet
+inside this process and publishes its physics pose over Zenoh through a virtual mocap (``sim.world``), so a dry
+run exercises the same loop, Zenoh path and logging as a flight with real mocap; the simulator is advanced to the
+wall time at the start of every period. ``crazyflie`` drives one cflib link per module (radio or UDP) and
+``mavlink`` one pymavlink connection per PX4 module (:mod:`groundstation.runtime.hardware`); both take poses from
+whatever publishes them on Zenoh: a mocap bridge, or ``groundstation sim-peer``, which simulates the modules behind
+their real wire protocol in another process. A hardware flight never imports the simulator.
 
 Operator: the first Ctrl-C (or SIGTERM) lands, a second one stops the motors at once. Every exit path ends with
 the motors off and the MCAP file finalized: a normal landing disarms the modules (they can fly again at once),
@@ -30,23 +31,21 @@ import numpy as np
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from groundstation import __version__, config
+from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.assembly_file import assembly_record, load_assembly
-from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
-from groundstation.backends.mavlink import MavlinkBackend, MavlinkSettings
-from groundstation.backends.radio_budget import radio_budget_issues
+from groundstation.backend_kinds import BackendKind, backend_kind, load
 from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
-from groundstation.control.trajectory import FlightPlan, make_track
-from groundstation.errors import ConfigError
+from groundstation.control.trajectory import Circle, Figure8, FlightPlan, Hover, make_track
+from groundstation.errors import ConfigError, PreflightError
 from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog
 from groundstation.loop_activity import LoopActivity
-from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session, pose_key
+from groundstation.mocap.zenoh_link import PoseSubscriber, Security, SubscriberSettings, open_session, pose_key
 from groundstation.runtime.closed_loop import (
     FlightVolume,
-    PreflightError,
     dynamics_check,
     flight_summary,
     hover_check,
@@ -54,7 +53,7 @@ from groundstation.runtime.closed_loop import (
 )
 from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, Requests
 from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config, mocap_security
-from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, WallClock, realtime_priority
+from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopStats, WallClock, realtime_priority
 
 PREFLIGHT_TIMEOUT_S = 3.0
 PREFLIGHT_WATCH_S = 1.0
@@ -167,36 +166,30 @@ def _firmware_param_issues(cfg: FlightConfig, base: Path, src: str, cache_dir: P
     return [f"firmware parameter: {b} (fix with: groundstation params {src} --apply)" for b in bad]
 
 
-def _check_crazyflie_config(cfg: FlightConfig, assembly, src: str) -> None:
-    """What a Crazyflie flight needs of its config: the modules' thrust map, and a radio that carries the rate."""
-    if assembly.params.motor_command is None:
-        raise ConfigError("the assembly's module_params has no motor_command (the thrust map of the modules' "
-                          "platform, see configs/modules/paper_table2.toml)", path=src, key="assembly")
-    budget = radio_budget_issues(cfg.backend.modules, cfg.rate_hz, cfg.backend.radio_capacity_hz)
-    if budget:
-        raise ConfigError("; ".join(budget), path=src, key="backend.modules")
+@dataclass(frozen=True)
+class _Prepared:
+    """Everything a flight needs that comes from its input, checked before anything is opened."""
+
+    cfg: FlightConfig
+    base: Path
+    """Directory the config's relative paths start from."""
+    src: str
+    """The config path as given (named in errors)."""
+    assembly: Assembly
+    kind: BackendKind
+    track: Hover | Circle | Figure8
+    plan: FlightPlan
+    """From the resting height; preflight re-anchors it where mocap sees the assembly."""
+    volume: FlightVolume
+    key: str
+    """Zenoh key of the body's pose."""
+    security: Security | None
+    log_file: Path
 
 
-def _hardware_backend(cfg: FlightConfig, assembly) -> CrazyflieBackend | MavlinkBackend:
-    b = cfg.backend
-    if b.kind == "crazyflie":
-        f = cfg.failsafe
-        return CrazyflieBackend(b.modules, assembly.params, assembly.module_rotations,
-                                CrazyflieSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
-                                                  command_period=1.0 / cfg.rate_hz,
-                                                  max_latency=f.max_link_latency_s, max_loss=f.max_link_loss))
-    return MavlinkBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
-                          MavlinkSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
-                                          pwm_min=b.pwm_min, pwm_max=b.pwm_max))
-
-
-def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
-        requests: Requests | None = None, faults: Faults | None = None,
-        on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
-        activity: LoopActivity | None = None, live_port: int | None = None) -> FlyResult:
-    """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
-    thread (e.g. a status display) work between control periods, like the log writer does. ``live_port``: serve
-    the log's channels over the Foxglove WebSocket protocol on 127.0.0.1 while flying (from the writer process)."""
+def prepare(config_path: str | Path, duration: float | None = None, log_path: str | Path | None = None) -> _Prepared:
+    """Stage 1: load and check the input (config, assembly, trajectory against the assembly and the geofence,
+    what the backend kind needs); only then make the log file, so bad input leaves nothing behind."""
     cfg, base = load_flight_config(config_path)
     src = str(config_path)
     if duration is not None:
@@ -212,33 +205,25 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     if cfg.backend.modules and len(cfg.backend.modules) != assembly.n:
         raise ConfigError(f"{len(cfg.backend.modules)} module links for an assembly of {assembly.n} modules",
                           path=src, key="backend.modules")
-    faults = faults or Faults()
-    requests = requests or Requests()
+    kind = backend_kind(cfg.backend.kind)
+    if kind.links is not None and not cfg.backend.modules:
+        raise ConfigError(f"the {kind.name} backend needs one link per module", path=src, key="backend.modules")
     t = cfg.trajectory
     track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
-    gains = Gains(**asdict(cfg.gains))
-    policy = FailsafePolicy(**asdict(cfg.failsafe))
-
-    from sim.pybullet_backend import resting_height
-
-    if cfg.backend.kind != "sim" and not cfg.backend.modules:
-        raise ConfigError(f"the {cfg.backend.kind} backend needs one link per module", path=src,
-                          key="backend.modules")
-    plan = FlightPlan((0.0, 0.0, resting_height(assembly)), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
+    plan = FlightPlan((0.0, 0.0, assembly.resting_height), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
     model = ControlModel.from_assembly(assembly)
-    volume = FlightVolume(tuple(np.array(policy.geofence_lower) + 0.2), tuple(np.array(policy.geofence_upper) - 0.2))
+    f = cfg.failsafe
+    volume = FlightVolume(tuple(np.array(f.geofence_lower) + 0.2), tuple(np.array(f.geofence_upper) - 0.2))
     hover_check(model, plan)
     try:
         volume_check(plan, volume)
         dynamics_check(model, plan, cfg.mocap.max_speed)
     except PreflightError as exc:  # bad input: the trajectory section asks for what cannot be flown
         raise ConfigError(str(exc), path=src, key="trajectory") from None
-
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     security = mocap_security(cfg.mocap, base, src)
-    if cfg.backend.kind == "crazyflie":
-        _check_crazyflie_config(cfg, assembly, src)
-    # Every check of the input is done: only now is the log file made (bad input leaves nothing behind).
+    for issue_key, issue in load(kind.config_issues)(cfg, assembly) if kind.config_issues else ():
+        raise ConfigError(issue, path=src, key=issue_key)
     stamp_name = time.strftime("flight-%Y%m%d-%H%M%S.mcap")
     log_file = Path(log_path) if log_path else (base / cfg.log_dir).resolve() / stamp_name
     try:
@@ -246,6 +231,22 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         log_file.touch()
     except OSError as exc:
         raise ConfigError(f"log directory cannot be written: {exc}", path=src, key="log_dir") from None
+    return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file)
+
+
+def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
+        requests: Requests | None = None, faults: Faults | None = None,
+        on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
+        activity: LoopActivity | None = None, live_port: int | None = None) -> FlyResult:
+    """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
+    thread (e.g. a status display) work between control periods, like the log writer does. ``live_port``: serve
+    the log's channels over the Foxglove WebSocket protocol on 127.0.0.1 while flying (from the writer process).
+
+    Stages: :func:`prepare` (input), open (the world of the backend kind, Zenoh, the log), :func:`_preflight`,
+    :func:`_run`, and the summary; the ``with`` block closes everything in reverse order, motors first."""
+    p = prepare(config_path, duration, log_path)
+    faults = faults or Faults()
+    requests = requests or Requests()
     activity = activity or LoopActivity()
     ended_cleanly = [False]
     offset = time.time() - time.monotonic()
@@ -255,151 +256,97 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         return mono + offset
 
     with ExitStack() as stack:
-        m = cfg.mocap
-        if cfg.backend.kind == "sim":
-            # The simulator plays the mocap system: it listens, the ground station connects (as with a bridge).
-            ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
-            world = stack.enter_context(_SimulatedWorld(assembly, cfg, key, theirs, faults, activity, security))
-            backend = world.backend
-            param_issues = []
-        else:
-            ours = [m.endpoint] if m.listen else []
-            theirs = [] if m.listen else [m.endpoint]
-            world = None
-            # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
-            backend = _hardware_backend(cfg, assembly)
-            param_issues = _firmware_param_issues(cfg, base, src, log_file.parent)
-            backend.connect()
-            stack.callback(backend.close)
-            # Runs first on the way out: a flight that landed (or never armed) is disarmed already; anything else
-            # (an exception, Ctrl-C in preflight) gets the emergency stop.
-            stack.callback(lambda: None if ended_cleanly[0] else backend.emergency_stop())
-        gs_session = open_session(listen=ours, connect=theirs, security=security)
+        m = p.cfg.mocap
+        ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
+        # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
+        firmware_issues = _firmware_param_issues(p.cfg, p.base, p.src, p.log_file.parent)
+        world = stack.enter_context(load(p.kind.world)(p.assembly, p.cfg, p.key, theirs, faults, activity,
+                                                       p.security))
+        # Runs first on the way out: a flight that landed (or never armed) is disarmed already; anything else
+        # (an exception, Ctrl-C in preflight) gets the emergency stop.
+        stack.callback(lambda: None if ended_cleanly[0] else world.backend.emergency_stop())
+        gs_session = open_session(listen=ours, connect=theirs, security=p.security)
         stack.callback(gs_session.close)
-        sub = PoseSubscriber(gs_session, key, SubscriberSettings(max_speed=m.max_speed))
+        sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed))
         stack.callback(sub.close)
-
-        log = FlightLog(log_file, {"config": json.dumps(asdict(cfg)), "config_path": src,
-                                   "code_version": code_version(),
-                                   "assembly": json.dumps(assembly_record(assembly))}, activity=activity,
+        log = FlightLog(p.log_file, {"config": json.dumps(asdict(p.cfg)), "config_path": p.src,
+                                     "code_version": code_version(),
+                                     "assembly": json.dumps(assembly_record(p.assembly))}, activity=activity,
                         live_port=live_port)
         stack.callback(log.close)
         pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
 
-        # Preflight: let the mocap stream start (and the simulator settle on the ground).
-        watch_start = time.monotonic()
-        deadline = watch_start + PREFLIGHT_TIMEOUT_S
-        while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < PREFLIGHT_WATCH_S)
-               and time.monotonic() < deadline):
-            if world is not None:
-                world.settle(0.02)
-            time.sleep(0.005)
-        s = pose.state()
-        report = backend.preflight()
-        issues = list(report.issues) + param_issues
-        if sub.fault():
-            issues.append(f"mocap: {sub.fault()}")
-        if s is None:
-            issues.append(f"mocap does not see '{m.body}' on {key} via {m.endpoint}")
-        else:
-            if s.rotation[2, 2] < np.cos(np.radians(10)):
-                issues.append("assembly is not level")
-            if np.linalg.norm(s.velocity) > STILL_SPEED:
-                issues.append(f"assembly is moving ({np.linalg.norm(s.velocity):.2f} m/s)")
-        reference = np.array([plan(t_ref).position for t_ref in np.arange(0.0, plan.duration, 0.05)])
-        log.scene(assembly, to_log(time.monotonic()), reference,
-                  (tuple(policy.geofence_lower), tuple(policy.geofence_upper)))
-        if issues:
-            log.event("error", "preflight failed: " + "; ".join(issues), to_log(time.monotonic()))
-            raise PreflightError("preflight failed: " + "; ".join(issues))
-        # Take off from where mocap sees the assembly (hardware is never exactly at the nominal spot).
-        plan = FlightPlan(tuple(float(v) for v in s.position), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
-        volume_check(plan, volume)
-        log.event("info", "preflight passed", to_log(time.monotonic()))
-
-        before = world.before_period(on_period) if world is not None else on_period
-        flight = Flight(assembly, plan, backend, pose, gains=gains, allocation=cfg.allocation, policy=policy,
-                        log=log, requests=requests, before_period=before, to_log_time=to_log,
-                        truth=world.backend.true_state if world is not None else None, on_status=on_status,
-                        activity=activity)
-        restore = _install_signals(requests) if handle_signals else None
-        # Background threads are Python too; by default a thread may hold the GIL for 5 ms before handing it
-        # over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
-        switch = sys.getswitchinterval()
-        sys.setswitchinterval(GIL_SWITCH_S)
-        wall0 = time.perf_counter()
-        try:
-            with realtime_priority(cfg.realtime_priority) as rt:
-                if cfg.realtime_priority and not rt:
-                    log.event("warning", f"real-time priority {cfg.realtime_priority} not permitted (needs "
-                              "CAP_SYS_NICE or an rtprio limit): the loop runs at normal priority",
-                              to_log(time.monotonic()))
-                stats = flight.run(WallClock(SPIN_RT_S if rt else SPIN_S), cfg.rate_hz, realtime=rt)
-        finally:
-            sys.setswitchinterval(switch)
-            if restore is not None:
-                restore()
+        plan = _preflight(p, world, sub, pose, log, firmware_issues, to_log)
+        flight = Flight(p.assembly, plan, world.backend, pose, gains=Gains(**asdict(p.cfg.gains)),
+                        allocation=p.cfg.allocation, policy=FailsafePolicy(**asdict(p.cfg.failsafe)), log=log,
+                        requests=requests, before_period=world.before_period(on_period), to_log_time=to_log,
+                        truth=world.truth, on_status=on_status, activity=activity)
+        stats, wall_s = _run(flight, p.cfg, log, requests, handle_signals, to_log)
         ended_cleanly[0] = flight.phase in (Phase.DONE, Phase.ABORTED)
-        metrics = flight_summary(flight, time.perf_counter() - wall0, plan.duration, stats)
+        metrics = flight_summary(flight, wall_s, plan.duration, stats)
         log.record("/flight/summary", {k: v for k, v in metrics.items() if k != "loop"} | {
             "phase": flight.phase, "reason": flight.reason}, to_log(time.monotonic()))
-    return FlyResult(log_file, flight.phase, flight.reason, metrics, flight.events, log.error)
+    return FlyResult(p.log_file, flight.phase, flight.reason, metrics, flight.events, log.error)
 
 
-class _SimulatedWorld:
-    """The in-process simulator (``backend.kind = "sim"``): PyBullet physics publishing its pose over Zenoh.
+def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, log: FlightLog,
+               firmware_issues: list[str], to_log: Callable[[float], float]) -> FlightPlan:
+    """Stage 3: let the mocap stream start (and a simulated assembly settle), check the backend, mocap, level and
+    stillness, log the scene; the plan re-anchored where mocap sees the assembly. Raises PreflightError."""
+    m = p.cfg.mocap
+    watch_start = time.monotonic()
+    deadline = watch_start + PREFLIGHT_TIMEOUT_S
+    while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < PREFLIGHT_WATCH_S)
+           and time.monotonic() < deadline):
+        world.settle(0.02)
+        time.sleep(0.005)
+    s = pose.state()
+    issues = list(world.backend.preflight().issues) + firmware_issues
+    if sub.fault():
+        issues.append(f"mocap: {sub.fault()}")
+    if s is None:
+        issues.append(f"mocap does not see '{m.body}' on {p.key} via {m.endpoint}")
+    else:
+        if s.rotation[2, 2] < np.cos(np.radians(10)):
+            issues.append("assembly is not level")
+        if np.linalg.norm(s.velocity) > STILL_SPEED:
+            issues.append(f"assembly is moving ({np.linalg.norm(s.velocity):.2f} m/s)")
+    reference = np.array([p.plan(t_ref).position for t_ref in np.arange(0.0, p.plan.duration, 0.05)])
+    f = p.cfg.failsafe
+    log.scene(p.assembly, to_log(time.monotonic()), reference, (tuple(f.geofence_lower), tuple(f.geofence_upper)))
+    if issues:
+        log.event("error", "preflight failed: " + "; ".join(issues), to_log(time.monotonic()))
+        raise PreflightError("preflight failed: " + "; ".join(issues))
+    # Take off from where mocap sees the assembly (hardware is never exactly at the nominal spot).
+    t = p.cfg.trajectory
+    plan = FlightPlan(tuple(float(v) for v in s.position), p.track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
+    volume_check(plan, p.volume)
+    log.event("info", "preflight passed", to_log(time.monotonic()))
+    return plan
 
-    The flight advances it to the wall time at the start of every period.
-    """
 
-    def __init__(self, assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults,
-                 activity: LoopActivity, security=None) -> None:
-        from sim.pybullet_backend import PyBulletBackend, SimConfig
-        from sim.virtual_mocap import VirtualMocap
-
-        m = cfg.mocap
-        self.faults = faults
-        self._stack = ExitStack()
-        connect = [] if listen else [m.endpoint]
-        session = open_session(listen=listen, connect=connect, security=security)
-        self._stack.callback(session.close)
-        publisher = PosePublisher(session, key)
-        self._stack.callback(publisher.close)
-        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s,
-                              threaded=True, activity=activity)
-        self._stack.callback(vmocap.close)
-
-        def observe(t_sim, state):
-            vmocap.paused = faults.mocap_paused
-            vmocap.on_step(t_sim, state)
-
-        self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
-                                                           motor_time_constant=cfg.backend.motor_time_constant),
-                                       observers=[observe])
-        self.backend.connect()
-        self._stack.callback(self.backend.close)
-        self._stack.callback(self.backend.emergency_stop)  # runs first on the way out: motors off
-
-    def settle(self, dt: float) -> None:
-        """Advance the simulation by ``dt`` before the flight (preflight)."""
-        self.backend.advance_to(self.backend.time + dt)
-
-    def before_period(self, on_period: Callable[[float], None] | None) -> Callable[[float], None]:
-        t0 = self.backend.time
-
-        def advance(t: float) -> None:
-            self.backend.link_ok = not self.faults.link_lost
-            if on_period is not None:
-                on_period(t)
-            self.backend.advance_to(t0 + t)
-
-        return advance
-
-    def __enter__(self) -> _SimulatedWorld:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stack.close()
+def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, requests: Requests, handle_signals: bool,
+         to_log: Callable[[float], float]) -> tuple[LoopStats, float]:
+    """Stage 4: arm and fly at the config's rate (real-time priority if permitted); the loop's statistics and the
+    wall time."""
+    restore = _install_signals(requests) if handle_signals else None
+    # Background threads are Python too; by default a thread may hold the GIL for 5 ms before handing it
+    # over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(GIL_SWITCH_S)
+    wall0 = time.perf_counter()
+    try:
+        with realtime_priority(cfg.realtime_priority) as rt:
+            if cfg.realtime_priority and not rt:
+                log.event("warning", f"real-time priority {cfg.realtime_priority} not permitted (needs "
+                          "CAP_SYS_NICE or an rtprio limit): the loop runs at normal priority",
+                          to_log(time.monotonic()))
+            stats = flight.run(WallClock(SPIN_RT_S if rt else SPIN_S), cfg.rate_hz, realtime=rt)
+    finally:
+        sys.setswitchinterval(switch)
+        if restore is not None:
+            restore()
+    return stats, time.perf_counter() - wall0
 
 
 def _install_signals(requests: Requests):

@@ -6,7 +6,7 @@ from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.backends.base import Backend
 from groundstation.rotations import rotvec_to_matrix
-from sim.pybullet_backend import PyBulletBackend, SimConfig, resting_height
+from sim.pybullet_backend import PyBulletBackend, SimConfig
 
 P = ModuleParams()
 # Tilted L-shape: full inertia tensor with off-diagonal terms, fully actuated.
@@ -89,7 +89,7 @@ def test_rests_on_ground_without_thrust_and_commands_are_bounded():
     flat = Assembly(Topology.from_code("oE"), P, np.zeros(3))
     with PyBulletBackend(flat) as be:
         z0 = be.true_state().position[2]
-        assert z0 == pytest.approx(resting_height(flat))
+        assert z0 == pytest.approx(flat.resting_height)
         be.advance_to(1.0)
         assert abs(be.true_state().position[2] - z0) < 5e-3  # ground contact holds it
     with PyBulletBackend(FULL) as be:  # a tilted assembly stands on one corner and tips, but never sinks

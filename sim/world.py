@@ -1,0 +1,80 @@
+"""The simulated world of a dry run (``backend.kind = "sim"``): PyBullet physics in the ground-station process,
+publishing its pose over Zenoh through a virtual mocap, so a dry run exercises the same loop, Zenoh path and
+logging as a flight with real mocap. The flight advances it to the wall time at the start of every period.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import ExitStack
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from groundstation.assembly.assembly import Assembly
+from groundstation.control.state import RigidState
+from groundstation.loop_activity import LoopActivity
+from groundstation.mocap.zenoh_link import PosePublisher, Security, open_session
+from sim.pybullet_backend import PyBulletBackend, SimConfig
+from sim.virtual_mocap import VirtualMocap
+
+if TYPE_CHECKING:  # types only: the runtime reaches this module through groundstation.backend_kinds
+    from groundstation.runtime.flight_config import FlightConfig
+    from groundstation.runtime.fly import Faults
+
+
+class SimulatedWorld:
+    """PyBullet plus a virtual mocap; ``listen``: the Zenoh endpoints it listens on (empty: it connects to the
+    config's endpoint, where the ground station listens)."""
+
+    def __init__(self, assembly: Assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults,
+                 activity: LoopActivity, security: Security | None = None) -> None:
+        m = cfg.mocap
+        self.faults = faults
+        self._stack = ExitStack()
+        connect = [] if listen else [m.endpoint]
+        session = open_session(listen=listen, connect=connect, security=security)
+        self._stack.callback(session.close)
+        publisher = PosePublisher(session, key)
+        self._stack.callback(publisher.close)
+        vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s,
+                              threaded=True, activity=activity)
+        self._stack.callback(vmocap.close)
+
+        def observe(t_sim, state):
+            vmocap.paused = faults.mocap_paused
+            vmocap.on_step(t_sim, state)
+
+        self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
+                                                           motor_time_constant=cfg.backend.motor_time_constant),
+                                       observers=[observe])
+        self.backend.connect()
+        self._stack.callback(self.backend.close)
+        self._stack.callback(self.backend.emergency_stop)  # runs first on the way out: motors off
+
+    @property
+    def truth(self) -> Callable[[], RigidState]:
+        """The physics state, logged beside the mocap estimate."""
+        return self.backend.true_state
+
+    def settle(self, dt: float) -> None:
+        """Let ``dt`` pass before the flight (preflight): the assembly settles on the ground."""
+        self.backend.advance_to(self.backend.time + dt)
+
+    def before_period(self, on_period: Callable[[float], None] | None) -> Callable[[float], None]:
+        """What runs at the start of every period: the faults applied, the caller's hook, physics to time ``t``."""
+        t0 = self.backend.time
+
+        def advance(t: float) -> None:
+            self.backend.link_ok = not self.faults.link_lost
+            if on_period is not None:
+                on_period(t)
+            self.backend.advance_to(t0 + t)
+
+        return advance
+
+    def __enter__(self) -> SimulatedWorld:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stack.close()
