@@ -16,6 +16,7 @@ from typing import Literal
 import numpy as np
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
 from groundstation.mocap.zenoh_link import PosePublisher, open_session
 from sim.pybullet_backend import PyBulletBackend, SimConfig
 from sim.virtual_mocap import VirtualMocap
@@ -36,8 +37,8 @@ class PeerConfig:
     """rad"""
     mocap_latency: float = 0.005
     """s"""
-    physics_hz: float = 240.0
-    motor_time_constant: float = 0.02
+    physics_hz: float = SIM_PHYSICS_HZ
+    motor_time_constant: float = SIM_MOTOR_TIME_CONSTANT
     """s"""
     state_rate_hz: float = 100.0
     """PX4 modules: state streams, Hz (the Crazyflie motor app reports every 10 ms)."""

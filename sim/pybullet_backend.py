@@ -27,15 +27,16 @@ with quiet_stderr():  # pybullet prints its build date on stderr at import: nois
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command
+from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
 from groundstation.control.state import RigidState
 from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 
 
 @dataclass(frozen=True)
 class SimConfig:
-    physics_hz: float = 240.0
+    physics_hz: float = SIM_PHYSICS_HZ
     """Physics step rate, Hz."""
-    motor_time_constant: float = 0.02
+    motor_time_constant: float = SIM_MOTOR_TIME_CONSTANT
     """First-order lag of every rotor input, s."""
     position_noise: float = 0.0
     """Std of measured position noise, m."""

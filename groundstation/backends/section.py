@@ -13,15 +13,21 @@ from groundstation.backend_kinds import KINDS, backend_kind, link_problem
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
+SIM_PHYSICS_HZ = 240.0
+"""Physics rate of the simulated modules (PyBullet's default step, 1/240 s), Hz: the one default every simulator
+(``sim``, ``sim-peer``, ``simulate``) starts from."""
+SIM_MOTOR_TIME_CONSTANT = 0.02
+"""First-order lag of a simulated rotor, s."""
+
 
 @dataclass(frozen=True, config=_STRICT)
 class BackendSection:
     kind: str = "sim"
     """A name in :data:`groundstation.backend_kinds.KINDS`: ``sim`` (PyBullet in this process), ``crazyflie``
     (modules over cflib links) or ``mavlink`` (PX4 modules over pymavlink connections; see ``modules``)."""
-    physics_hz: float = Field(240.0, gt=0)
+    physics_hz: float = Field(SIM_PHYSICS_HZ, gt=0)
     """sim only."""
-    motor_time_constant: float = Field(0.02, ge=0)
+    motor_time_constant: float = Field(SIM_MOTOR_TIME_CONSTANT, ge=0)
     """sim only, s"""
     modules: tuple[str, ...] = ()
     """One link per module in assembly order; required for ``crazyflie`` and ``mavlink``, optional for ``sim``.

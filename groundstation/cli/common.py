@@ -48,3 +48,10 @@ def json_safe(x):
     if isinstance(x, list | tuple):
         return [json_safe(v) for v in x]
     return x
+
+
+def sim_physics_hz() -> float:
+    """Default of ``--physics-hz``: the simulator's physics rate (imported when a command runs, not for help)."""
+    from groundstation.backends.section import SIM_PHYSICS_HZ
+
+    return SIM_PHYSICS_HZ

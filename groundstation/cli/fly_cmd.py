@@ -11,7 +11,7 @@ from rich.live import Live
 from rich.table import Table
 
 from groundstation.backend_kinds import KINDS, load
-from groundstation.cli.common import json_safe, stderr_console, writable_output
+from groundstation.cli.common import json_safe, sim_physics_hz, stderr_console, writable_output
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
@@ -192,7 +192,7 @@ PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
 @click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
               help="Zenoh endpoint the virtual mocap listens on.")
 @click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
-@click.option("--physics-hz", type=float, default=240.0, show_default=True)
+@click.option("--physics-hz", type=float, default=sim_physics_hz, help="Physics rate, Hz (default: the simulator's).")
 @click.option("--platform", type=click.Choice(["cf2", "cf21bl", "bolt"]), default="bolt", show_default=True,
               help="crtp: the Crazyflie platform simulated (bolt and cf21bl must be asked to arm; cf2 arms itself).")
 @click.option("--stock-firmware", is_flag=True,

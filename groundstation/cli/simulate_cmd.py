@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import writable_output
+from groundstation.cli.common import sim_physics_hz, writable_output
 from groundstation.errors import UsageError
 
 EXIT_CRASHED = 1
@@ -23,7 +23,7 @@ EXIT_CRASHED = 1
 @click.option("--period", type=float, default=8.0, show_default=True, help="Figure-8 t_c or circle period, s.")
 @click.option("--roll", type=float, default=0.0, show_default=True, help="Attitude target roll, degrees.")
 @click.option("--control-hz", type=float, default=250.0, show_default=True)
-@click.option("--physics-hz", type=float, default=240.0, show_default=True)
+@click.option("--physics-hz", type=float, default=sim_physics_hz, help="Physics rate, Hz (default: the simulator's).")
 @click.option("--allocation", default="clip", show_default=True, help="clip (paper) or bounded (saturation-aware).")
 @click.option("--noise", is_flag=True, help="Add mocap-like noise (1 mm, 0.2 deg) and 5 ms latency.")
 @click.option("--realtime", is_flag=True, help="Pace to the wall clock instead of lockstep.")

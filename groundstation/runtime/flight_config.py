@@ -16,6 +16,8 @@ from pydantic.dataclasses import dataclass
 
 from groundstation import config
 from groundstation.backends.section import BackendSection
+from groundstation.control.geometric import Gains
+from groundstation.runtime.flight import FailsafePolicy
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_DURATION_S = 3600.0
@@ -93,31 +95,36 @@ class TrajectorySection:
 
 @dataclass(frozen=True, config=_STRICT)
 class GainsSection:
-    position_hz: float = Field(0.8, gt=0)
-    position_zeta: float = Field(1.0, gt=0)
-    attitude_hz: float = Field(4.0, gt=0)
-    attitude_zeta: float = Field(0.9, gt=0)
+    """Controller gains (defaults and meaning: :class:`~groundstation.control.geometric.Gains`)."""
+
+    position_hz: float = Field(Gains.position_hz, gt=0)
+    position_zeta: float = Field(Gains.position_zeta, gt=0)
+    attitude_hz: float = Field(Gains.attitude_hz, gt=0)
+    attitude_zeta: float = Field(Gains.attitude_zeta, gt=0)
 
 
 @dataclass(frozen=True, config=_STRICT)
 class FailsafeSection:
-    mocap_timeout_s: float = Field(0.25, gt=0)
-    on_mocap_stale: Literal["land", "stop"] = "land"
-    on_mocap_fault: Literal["land", "stop"] = "land"
+    """The flight's failsafes (:class:`~groundstation.runtime.flight.FailsafePolicy` holds the defaults and what
+    each means)."""
+
+    mocap_timeout_s: float = Field(FailsafePolicy.mocap_timeout_s, gt=0)
+    on_mocap_stale: Literal["land", "stop"] = FailsafePolicy.on_mocap_stale
+    on_mocap_fault: Literal["land", "stop"] = FailsafePolicy.on_mocap_fault
     """A second publisher on the body's key (its samples are never used)."""
-    max_tilt_deg: float = Field(75.0, gt=0, le=180)
-    geofence_lower: tuple[float, float, float] = (-3.5, -3.5, -0.2)
-    geofence_upper: tuple[float, float, float] = (3.5, 3.5, 3.5)
-    max_link_latency_s: float = Field(0.014, gt=0)
+    max_tilt_deg: float = Field(FailsafePolicy.max_tilt_deg, gt=0, le=180)
+    geofence_lower: tuple[float, float, float] = FailsafePolicy.geofence_lower
+    geofence_upper: tuple[float, float, float] = FailsafePolicy.geofence_upper
+    max_link_latency_s: float = Field(FailsafePolicy.max_link_latency_s, gt=0)
     """crazyflie: a module's command round trip beyond this (median of its newest echoes) is a degraded link, s."""
-    link_stop_latency_s: float = Field(0.020, gt=0)
+    link_stop_latency_s: float = Field(FailsafePolicy.link_stop_latency_s, gt=0)
     """crazyflie: beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
-    max_link_loss: float = Field(0.1, gt=0, le=1)
+    max_link_loss: float = Field(FailsafePolicy.max_link_loss, gt=0, le=1)
     """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded."""
-    on_link_degraded: Literal["land", "stop"] = "land"
-    max_stall_s: float = Field(0.1, gt=0)
+    on_link_degraded: Literal["land", "stop"] = FailsafePolicy.on_link_degraded
+    max_stall_s: float = Field(FailsafePolicy.max_stall_s, gt=0)
     """A gap between control periods beyond this stops the motors (the modules have stopped theirs), s."""
-    on_log_failure: Literal["land", "continue"] = "land"
+    on_log_failure: Literal["land", "continue"] = FailsafePolicy.on_log_failure
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
 
 
