@@ -116,14 +116,13 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     if fig_dir is not None:
         import numpy as np
 
-        from groundstation.assembly.assembly_file import load_assembly
+        from groundstation.assembly.assembly_file import assembly_from_record
         from groundstation.design.figures import plot_assembly, plot_costs, plot_polytope
 
-        save_assembly(fig_dir / "best.json", sel.best)
-        assembly, rec = load_assembly(fig_dir / "best.json")
+        assembly = assembly_from_record(sel.best, "the selected design")
         plot_assembly(assembly, fig_dir / "fig1_assembly.png")
         plot_costs(rows, sel.n, fig_dir / "fig5_costs.png")
-        plot_polytope(assembly, np.array(rec["wrenches"])[:, :3], fig_dir / "fig6_polytope.png")
+        plot_polytope(assembly, np.array(sel.best["wrenches"])[:, :3], fig_dir / "fig6_polytope.png")
     if as_json:
         click.echo(json.dumps(sel.best))
     else:

@@ -60,6 +60,45 @@ meets the wrenches exactly)."""
 
 
 @dataclass(frozen=True)
+class Layout:
+    """The decision vector: its blocks in order and their sizes (the one place the order is written)."""
+
+    n: int
+    k: int
+    yaw: int
+    """1 with a free yaw, else 0."""
+    pairs: int
+    """Module pairs under clearance constraints."""
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        """Block sizes in order. ``frames``: per module its rotation (column-major) then its root-relative
+        position; ``plane_w``: the separating planes' normals, column-major (3, pairs)."""
+        n, k, p = self.n, self.k, self.pairs
+        return {"alpha": n + 1, "yaw": self.yaw, "v": 4 * n * k, "slack": 6 * k, "frames": 12 * n, "centroid": 3,
+                "plane_w": 3 * p, "plane_c": p}
+
+    def pack(self, **blocks) -> np.ndarray:
+        """One vector from every block by name: arrays (flattened column-major) or scalars (repeated)."""
+        out = []
+        for name, size in self.sizes.items():
+            block = np.ravel(blocks[name], order="F").astype(float)
+            if np.ndim(blocks[name]) == 0:
+                block = np.full(size, block[0])
+            if block.size != size:
+                raise ValueError(f"{name}: {block.size} values for a block of {size}")
+            out.append(block)
+        return np.concatenate(out)
+
+    def unpack(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        out, at = {}, 0
+        for name, size in self.sizes.items():
+            out[name] = x[at:at + size]
+            at += size
+        return out
+
+
+@dataclass(frozen=True)
 class Solution:
     """One Ipopt solve of the lifted NLP, mapped back to the paper's variables."""
 
@@ -137,6 +176,9 @@ class LiftedNlp:
         # every other module's inputs and fill the Hessian.
         self.centroid = ca.SX.sym("centroid", 3)
         kinematic.append(self.centroid - sum(self.pos[1:], self.pos[0]) / n)
+        # The wrench per module (its thrust along z_i, its moment matrix), not kin.allocation_matrix's per-rotor
+        # columns: the same numbers, but the per-rotor graph solved the toy case only to Ipopt's acceptable level
+        # and took 1.6x the Ipopt time at n = 30 (tried in issue 14).
         offsets = [p - self.centroid for p in self.pos]
         moments = ca.DM(kin.module_moment_matrix(params))
         wrench_rows = []
@@ -150,8 +192,7 @@ class LiftedNlp:
                 torque = torque + thrust * ca.cross(offsets[i], z) + self.rot[i] @ (moments @ u_i)
             wrench_rows.append((ca.vertcat(force, torque) - wrenches[j]) / row_scale - self.slack[6 * j:6 * j + 6])
         self.g_eq = ca.vertcat(*kinematic, *wrench_rows)
-        self.ends = [(p - params.capsule_a * r[:, 2], p - params.capsule_b * r[:, 2])
-                     for p, r in zip(self.pos, self.rot, strict=True)]
+        self.ends = kin.capsule_endpoints(self.pos, self.rot, params, kin.CASADI)
         self.phase = ca.SX.sym("phase", 2)
         cost = sum(float(weights[j]) * ca.sumsqr(self.v[:, j]) for j in range(k))
         self.objective = self.phase[0] * cost + self.phase[1] * ca.sumsqr(self.slack)
@@ -163,7 +204,8 @@ class LiftedNlp:
     @property
     def unknowns(self) -> int:
         """Variables of the cost phase: angles, yaw, inputs, lifted frames and the centroid."""
-        return (self.n + 1) + self.yaw.shape[0] + 4 * self.n * self.k + 12 * self.n + 3
+        sizes = self._layout(()).sizes
+        return sum(sizes[name] for name in ("alpha", "yaw", "v", "frames", "centroid"))
 
     @property
     def equalities(self) -> int:
@@ -182,8 +224,10 @@ class LiftedNlp:
                 g_pairs += [ca.dot(wi, e) - ci - half for e in self.ends[i]]
                 g_pairs += [ci - ca.dot(wi, e) - half for e in self.ends[j]]
                 g_pairs.append(1.0 - ca.sumsqr(wi))
-            frames = [ca.vertcat(ca.vec(rr), pp) for rr, pp in zip(self.rot, self.pos, strict=True)]
-            x = ca.vertcat(self.alpha, self.yaw, ca.vec(self.v), self.slack, *frames, self.centroid, ca.vec(w), c)
+            frames = ca.vertcat(*[ca.vertcat(ca.vec(rr), pp) for rr, pp in zip(self.rot, self.pos, strict=True)])
+            symbols = {"alpha": self.alpha, "yaw": self.yaw, "v": ca.vec(self.v), "slack": self.slack,
+                       "frames": frames, "centroid": self.centroid, "plane_w": ca.vec(w), "plane_c": c}
+            x = ca.vertcat(*(symbols[name] for name in self._layout(pairs).sizes))
             g = ca.vertcat(self.g_eq, *g_pairs)
             options = {
                 "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
@@ -203,25 +247,23 @@ class LiftedNlp:
               max_iter: int) -> Solution:
         """One solve from the given start, the module ``pairs`` under clearance constraints."""
         solver = self._solver(pairs, max_iter)
-        n, k, n_a, n_y = self.n, self.k, self.n + 1, self.yaw.shape[0]
-        n_v, n_s, n_p = 4 * n * k, 6 * k, len(pairs)
+        layout, n, n_p = self._layout(pairs), self.n, len(pairs)
         # Natural bounds on the lifted variables keep Ipopt's steps sane: rotation entries lie in [-1, 1],
         # positions (relative to the root) within the chain's reach, plane normals in the unit ball and plane
         # offsets within reach of any capsule end.
         reach = 2.0 * self.params.l_c * n
         frame_hi = np.tile(np.concatenate([np.ones(9), np.full(3, reach)]), n)
-        plane_hi = np.concatenate([np.ones(3 * n_p), np.full(n_p, reach + self.params.capsule_b)])
-        slack_hi = np.full(n_s, np.inf if phase == FEASIBILITY else 0.0)
-        lbx = np.concatenate([np.full(n_a, -np.pi / 2), np.full(n_y, -4 * np.pi), np.zeros(n_v), -slack_hi,
-                              -frame_hi, np.full(3, -reach), -plane_hi])
-        ubx = np.concatenate([np.full(n_a, np.pi / 2), np.full(n_y, 4 * np.pi), np.ones(n_v), slack_hi,
-                              frame_hi, np.full(3, reach), plane_hi])
+        slack_hi = np.inf if phase == FEASIBILITY else 0.0
+        lbx = layout.pack(alpha=-np.pi / 2, yaw=-4 * np.pi, v=0.0, slack=-slack_hi, frames=-frame_hi,
+                          centroid=-reach, plane_w=-1.0, plane_c=-(reach + self.params.capsule_b))
+        ubx = layout.pack(alpha=np.pi / 2, yaw=4 * np.pi, v=1.0, slack=slack_hi, frames=frame_hi,
+                          centroid=reach, plane_w=1.0, plane_c=reach + self.params.capsule_b)
         pos, rot = kin.module_frames(self.topo, alpha0, self.params.l_c, yaw0)
         rel = [p - pos[0] for p in pos]  # the lifted positions are relative to the root module
         frames0 = np.concatenate([np.concatenate([r.ravel(order="F"), p]) for r, p in zip(rot, rel, strict=True)])
         planes_w, planes_c = separating_planes(capsule_ends(rel, rot, self.params), pairs)
-        x0 = np.concatenate([alpha0, [yaw0][:n_y], np.ravel(v0, order="F"), np.zeros(n_s), frames0, -pos[0],
-                             np.ravel(planes_w, order="F"), planes_c])
+        x0 = layout.pack(alpha=alpha0, yaw=np.array([yaw0])[:layout.yaw], v=v0, slack=0.0, frames=frames0,
+                         centroid=-pos[0], plane_w=planes_w, plane_c=planes_c)
         n_eq = self.equalities
         t0 = time.perf_counter()
         weights = [1.0, 0.0] if phase == COST else [PHASE1_REGULARIZATION, 1.0]
@@ -230,11 +272,14 @@ class LiftedNlp:
                      ubg=np.concatenate([np.zeros(n_eq), np.full(5 * n_p, np.inf)]))
         wall = time.perf_counter() - t0
         stats = solver.stats()
-        xs = np.array(sol["x"]).ravel()
-        return Solution(alpha=xs[:n_a], yaw=float(xs[n_a]) if n_y else 0.0,
-                        v=xs[n_a + n_y:n_a + n_y + n_v].reshape((4 * n, k), order="F"),
+        xs = layout.unpack(np.array(sol["x"]).ravel())
+        return Solution(alpha=xs["alpha"], yaw=float(xs["yaw"][0]) if layout.yaw else 0.0,
+                        v=xs["v"].reshape((4 * n, self.k), order="F"),
                         status=str(stats["return_status"]), iterations=int(stats["iter_count"]), wall_s=wall,
                         function_s=sum(v for k, v in stats.items() if k.startswith("t_wall_")))
+
+    def _layout(self, pairs: Pairs) -> Layout:
+        return Layout(self.n, self.k, self.yaw.shape[0], len(pairs))
 
 
 def capsule_ends(positions, rotations, params: ModuleParams) -> np.ndarray:
