@@ -16,7 +16,6 @@ from groundstation.control.phase import Phase
 from groundstation.rotations import rotation_angle
 
 MEASURED = (Phase.SETTLE, Phase.TRACK, Phase.HOLD)
-"""Phases whose tracking error the metrics report (takeoff and landing follow their own ramps)."""
 """Phases over which attitude errors and saturation count (take-off and landing ramps excluded)."""
 SATURATED = 0.999
 """A rotor at this fraction of u_max or more, or at the complement or less, is saturated (at a bound)."""
