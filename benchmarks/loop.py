@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from benchmarks._util import median, print_table
+from groundstation.backend_kinds import KINDS
 from groundstation.runtime.fly import fly
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,8 +55,11 @@ def _config(src: Path, backend: str, rate: float | None, priority: int) -> str:
     new_rate = f"rate_hz = {rate:g}" if rate else rate_line
     cfg = cfg.replace(rate_line, f"realtime_priority = {priority}\n{new_rate}", 1)
     cfg = cfg.replace("tcp/127.0.0.1:7448", ENDPOINT)
-    scheme = {"crazyflie": "udp://", "mavlink": "udpout:"}.get(backend)
-    if scheme:
+    if backend != "sim":  # the sim section's keys are not a hardware section's
+        scheme = KINDS[backend].peer_scheme
+        sim_keys = [line for line in cfg.splitlines() if line.startswith(("physics_hz", "motor_time_constant"))]
+        for line in sim_keys:
+            cfg = cfg.replace(line + "\n", "")
         cfg = cfg.replace('kind = "sim"', f'kind = "{backend}"\nmodules = ["{scheme}127.0.0.1:{PEER_PORT}", '
                                           f'"{scheme}127.0.0.1:{PEER_PORT + 1}"]')
     return cfg
@@ -66,7 +70,7 @@ def _peer(backend: str):
     if backend == "sim":
         yield
         return
-    protocol = "crtp" if backend == "crazyflie" else "mavlink"
+    protocol = KINDS[backend].peer_protocol
     params = ROOT / ("firmware_params/crazyflie.toml" if backend == "crazyflie" else "firmware_params/px4/"
                      "module_params.toml")
     peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",

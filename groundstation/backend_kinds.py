@@ -19,6 +19,8 @@ class BackendKind:
     name: str
     summary: str
     """One line for docs and errors."""
+    section: str
+    """``module:class`` of the kind's ``[backend]`` config section."""
     world: str
     """``module:class`` of what a flight flies in: a context manager built from ``(cfg, assembly, theirs, faults,
     activity, security)`` with ``backend``, ``settle(dt)``, ``before_period(on_period)``, ``truth`` and
@@ -46,9 +48,10 @@ class BackendKind:
 KINDS: dict[str, BackendKind] = {k.name: k for k in (
     BackendKind(
         "sim", "PyBullet in this process, publishing its pose through a virtual mocap",
-        world="sim.world:SimulatedWorld"),
+        section="groundstation.backends.section:SimSection", world="sim.world:SimulatedWorld"),
     BackendKind(
         "crazyflie", "Crazyflie modules with the motor app, one cflib link each (Crazyradio, or UDP to sim-peer)",
+        section="groundstation.backends.section:CrazyflieSection",
         world="groundstation.runtime.hardware:HardwareModules",
         opener="groundstation.runtime.hardware:open_crazyflie",
         links=re.compile(r"^(radio://\w+(/\d+(/(250K|1M|2M)(/[0-9A-Fa-f]{1,10})?)?)?(\?.*)?"
@@ -59,6 +62,7 @@ KINDS: dict[str, BackendKind] = {k.name: k for k in (
         peer="sim.crazyflie_peer:SimulatedCrazyflies", peer_protocol="crtp", peer_scheme="udp://"),
     BackendKind(
         "mavlink", "PX4 modules in offboard mode, one pymavlink connection each (serial, UDP, or sim-peer)",
+        section="groundstation.backends.section:MavlinkSection",
         world="groundstation.runtime.hardware:HardwareModules",
         opener="groundstation.runtime.hardware:open_mavlink",
         links=re.compile(r"^((udpin|udpout|udp|udpbcast|tcp|tcpin):[\w.\-]+:" + _PORT + r"|/dev/\S+|COM\d+(,\d+)?)$"),

@@ -36,13 +36,26 @@ def validate(schema: type[T], data: object, *, path: str | None = None, prefix: 
         return TypeAdapter(schema).validate_python(data)
     except ValidationError as exc:
         err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
+        loc = ".".join(str(p) for p in _key_path(data, err["loc"]))
         key = ".".join(k for k in (prefix, loc) if k) or None
         msg = err["msg"]
         if err["type"] == "unexpected_keyword_argument" or err["type"] == "extra_forbidden":
             msg = "unknown key"
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
         raise ConfigError(msg + more, path=path, key=key) from None
+
+
+def _key_path(data: object, loc: tuple) -> list:
+    """The user's key path of an error location. pydantic puts the tag of a tagged union (``backend``'s kind) in
+    the location although it is no key of the file: an element that is not a key of the input there but one of
+    its values (the tag, e.g. ``crazyflie``) is dropped."""
+    out, node = [], data
+    for part in loc:
+        if isinstance(node, dict) and part not in node and part in node.values():
+            continue
+        out.append(part)
+        node = node.get(part) if isinstance(node, dict) else None
+    return out
 
 
 def load(schema: type[T], path: str | Path) -> T:

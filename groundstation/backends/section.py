@@ -6,10 +6,12 @@ It belongs to the backends (the firmware-parameter check and every backend read 
 
 from __future__ import annotations
 
-from pydantic import ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from typing import Annotated, Union
+
+from pydantic import ConfigDict, Discriminator, Field, Tag, ValidationInfo, field_validator, model_validator
 from pydantic.dataclasses import dataclass
 
-from groundstation.backend_kinds import KINDS, backend_kind, link_problem
+from groundstation.backend_kinds import KINDS, link_problem, load
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -21,54 +23,79 @@ SIM_MOTOR_TIME_CONSTANT = 0.02
 
 
 @dataclass(frozen=True, config=_STRICT)
-class BackendSection:
-    kind: str = "sim"
-    """A name in :data:`groundstation.backend_kinds.KINDS`: ``sim`` (PyBullet in this process), ``crazyflie``
-    (modules over cflib links) or ``mavlink`` (PX4 modules over pymavlink connections; see ``modules``)."""
-    physics_hz: float = Field(SIM_PHYSICS_HZ, gt=0)
-    """sim only."""
-    motor_time_constant: float = Field(SIM_MOTOR_TIME_CONSTANT, ge=0)
-    """sim only, s"""
-    modules: tuple[str, ...] = ()
-    """One link per module in assembly order; required for ``crazyflie`` and ``mavlink``, optional for ``sim``.
-    Its length must match the assembly. Crazyflie URIs: ``radio://0/80/2M/E7E7E7E701``, or
-    ``udp://127.0.0.1:19850`` for simulated modules. MAVLink connection strings: ``/dev/ttyACM0,921600``,
-    ``udpin:0.0.0.0:14550``, or ``udpout:127.0.0.1:14560`` for simulated modules."""
-    link_timeout_s: float = Field(0.1, gt=0)
-    """crazyflie, mavlink: a module silent for longer is lost (the flight stops the motors), s."""
-    min_battery_v: float = Field(3.5, ge=0)
-    """crazyflie, mavlink: preflight rejects a module below this battery voltage, V."""
-    pwm_min: int = Field(1000, ge=0)
-    """mavlink: the modules' PWM_MAIN_MIN (zero thrust), us."""
-    pwm_max: int = Field(2000, gt=0)
-    """mavlink: the modules' PWM_MAIN_MAX (full thrust), us."""
-    radio_capacity_hz: float = Field(450.0, gt=0)
-    """crazyflie: packets a second one Crazyradio carries (Bitcraze: about 450-500 round trips); every module
-    takes one per control period, so modules on one dongle x ``rate_hz`` must stay below it."""
-    firmware_params: str | None = None
-    """crazyflie, mavlink: a parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/
-    module_params.toml``; relative to this config) that preflight checks on every module before arming."""
+class SimSection:
+    """``kind = "sim"``: PyBullet in this process, publishing its pose through a virtual mocap."""
 
-    @field_validator("kind")
-    @classmethod
-    def _known(cls, kind: str) -> str:
-        backend_kind(kind)
-        return kind
+    kind: str = "sim"
+    physics_hz: float = Field(SIM_PHYSICS_HZ, gt=0)
+    """Hz."""
+    motor_time_constant: float = Field(SIM_MOTOR_TIME_CONSTANT, ge=0)
+    """s."""
+    modules: tuple[str, ...] = ()
+    """Ignored by the simulator; if given, its length must match the assembly (a config about to become a
+    hardware one)."""
+
+
+@dataclass(frozen=True, config=_STRICT)
+class LinkedSection:
+    """Modules reached over one link each (the fields every hardware kind has)."""
+
+    kind: str
+    modules: tuple[str, ...] = ()
+    """One link per module in assembly order (its form per kind: :data:`groundstation.backend_kinds.KINDS`).
+    Crazyflie URIs: ``radio://0/80/2M/E7E7E7E701``, or ``udp://127.0.0.1:19850`` for simulated modules. MAVLink
+    connection strings: ``/dev/ttyACM0,921600``, ``udpin:0.0.0.0:14550``, or ``udpout:127.0.0.1:14560``."""
+    link_timeout_s: float = Field(0.1, gt=0)
+    """A module silent for longer is lost (the flight stops the motors), s."""
+    min_battery_v: float = Field(3.5, ge=0)
+    """Preflight rejects a module below this battery voltage, V."""
+    firmware_params: str | None = None
+    """A parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/module_params.toml``; relative
+    to this config) that preflight checks on every module before arming."""
 
     @field_validator("modules")
     @classmethod
     def _links(cls, links: tuple[str, ...], info: ValidationInfo) -> tuple[str, ...]:
         for link in links:
-            problem = link_problem(info.data.get("kind", "sim"), link)
+            problem = link_problem(info.data["kind"], link)
             if problem:
                 raise ValueError(problem)
         return links
 
+
+@dataclass(frozen=True, config=_STRICT)
+class CrazyflieSection(LinkedSection):
+    """``kind = "crazyflie"``."""
+
+    kind: str = "crazyflie"
+    radio_capacity_hz: float = Field(450.0, gt=0)
+    """Packets a second one Crazyradio carries (Bitcraze: about 450-500 round trips); every module takes one per
+    control period, so modules on one dongle x ``rate_hz`` must stay below it."""
+
+
+@dataclass(frozen=True, config=_STRICT)
+class MavlinkSection(LinkedSection):
+    """``kind = "mavlink"``."""
+
+    kind: str = "mavlink"
+    pwm_min: int = Field(1000, ge=0)
+    """The modules' PWM_MAIN_MIN (zero thrust), us."""
+    pwm_max: int = Field(2000, gt=0)
+    """The modules' PWM_MAIN_MAX (full thrust), us."""
+
     @model_validator(mode="after")
-    def _consistent(self) -> BackendSection:
+    def _range(self) -> MavlinkSection:
         if self.pwm_max <= self.pwm_min:
             raise ValueError("pwm_max must be greater than pwm_min")
-        if backend_kind(self.kind).check_params is None and self.firmware_params is not None:
-            firmware = " or ".join(k.name for k in KINDS.values() if k.check_params is not None)
-            raise ValueError(f"firmware_params needs a {firmware} backend ({self.kind} has no module firmware)")
         return self
+
+
+def _kind_of(value) -> str:
+    return value.get("kind", "sim") if isinstance(value, dict) else getattr(value, "kind", "sim")
+
+
+BackendSection = Annotated[Union[tuple(Annotated[load(k.section), Tag(k.name)] for k in KINDS.values())],  # noqa: UP007
+                           Discriminator(_kind_of, custom_error_type="backend_kind",
+                                         custom_error_message=f"kind must be one of {', '.join(KINDS)}")]
+"""The ``[backend]`` section: the section class of its ``kind`` (each kind names its class in
+:data:`~groundstation.backend_kinds.KINDS`), so a key of another kind is an unknown key."""

@@ -15,7 +15,7 @@ from pydantic import ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from groundstation import config
-from groundstation.backends.section import BackendSection
+from groundstation.backends.section import BackendSection, SimSection
 from groundstation.control.geometric import Gains
 from groundstation.runtime.flight import FailsafePolicy
 
@@ -140,7 +140,7 @@ class FlightConfig:
     log_dir: str = "../../out/flights"
     """Where MCAP logs go, relative to this config."""
     allocation: Literal["clip", "bounded"] = "clip"
-    backend: BackendSection = BackendSection()
+    backend: BackendSection = SimSection()
     mocap: MocapSection = MocapSection()
     trajectory: TrajectorySection = TrajectorySection()
     gains: GainsSection = GainsSection()

@@ -155,8 +155,9 @@ def code_version() -> str:
 
 
 def _firmware_param_issues(cfg: FlightConfig, base: Path, src: str, cache_dir: Path) -> list[str]:
-    """Preflight: every module's firmware parameters as ``backend.firmware_params`` requires (none set: no check)."""
-    if cfg.backend.firmware_params is None:
+    """Preflight: every module's firmware parameters as ``backend.firmware_params`` requires (none set, or a kind
+    without module firmware: no check)."""
+    if backend_kind(cfg.backend.kind).check_params is None or cfg.backend.firmware_params is None:
         return []
     try:
         wanted = required_params(cfg.backend, base)

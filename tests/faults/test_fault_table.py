@@ -87,7 +87,7 @@ BAD_INPUTS = [
     ("radio_budget", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["radio://0/80/2M/E7E7E7E701", '
                       '"radio://0/80/2M/E7E7E7E702"]'}, (), "500 packets/s"),
     ("firmware_params_on_sim", {"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nfirmware_params = '
-                                '"x.toml"'}, (), "firmware_params needs a crazyflie or mavlink backend"),
+                                '"x.toml"'}, (), "backend.firmware_params: unknown key"),
     ("tls_without_certificates", {'endpoint = "tcp/127.0.0.1:7492"': 'endpoint = "tls/127.0.0.1:7492"\n'
                                   'tls = { root_ca = "ca.pem", certificate = "gs.pem", private_key = "gs.key" }'},
      (), "mocap.tls.root_ca: file not found"),
