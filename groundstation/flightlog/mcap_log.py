@@ -239,17 +239,27 @@ LIBRARY = "groundstation"
 
 
 class _Live:
-    """Every written record also served over the Foxglove WebSocket protocol (``foxglove-sdk``)."""
+    """Every written record also served over the Foxglove WebSocket protocol (``foxglove-sdk``).
+
+    The server starts with the first ``/control`` record, once the flight has created the channels a client
+    subscribes to at once (mocap, transforms, scene, state, control): channels that exist when a client connects
+    are advertised with the connection, while foxglove-sdk 0.30.3 can refuse a subscription sent the instant a
+    channel is advertised to an already connected client (3 runs in 8 under a CPU hog: "Unknown channel ID"). The
+    Foxglove app retries its connection until the server is up."""
+
+    START_TOPIC = "/control"
 
     def __init__(self, port: int) -> None:
         import foxglove
 
         self._foxglove = foxglove
-        self._server = foxglove.start_server(name="groundstation", host="127.0.0.1", port=port)
+        self.port = port
+        self._server = None
         self._channels: dict[str, object] = {}
 
     def publish(self, topic: str, encoding: str, schema_name: str, schema_encoding: str, schema: bytes,
                 payload: bytes, ns: int) -> None:
+        """Raises what starting the server raises (a port in use) at the first ``/control`` record."""
         ch = self._channels.get(topic)
         if ch is None:
             fg = self._foxglove
@@ -257,9 +267,12 @@ class _Live:
                                                     schema=fg.Schema(name=schema_name, encoding=schema_encoding,
                                                                      data=schema))
         ch.log(payload, log_time=ns)
+        if self._server is None and topic == self.START_TOPIC:
+            self._server = self._foxglove.start_server(name="groundstation", host="127.0.0.1", port=self.port)
 
     def close(self) -> None:
-        self._server.stop()
+        if self._server is not None:
+            self._server.stop()
 
 
 class _Writer:
@@ -275,16 +288,9 @@ class _Writer:
         self._channels: dict[str, tuple[int, str, str, str, bytes]] = {}
         """topic -> (channel id, message encoding, schema name, schema encoding, schema data)."""
         self._schemas: dict[str, tuple[int, bytes]] = {}
-        self._live = None
         for cls in (PoseInFrame, FrameTransform, Log):  # pose items are built here; Log for the live-view notice
             self._schema(cls.DESCRIPTOR.full_name, build_file_descriptor_set(cls).SerializeToString())
-        if live_port:
-            try:
-                self._live = _Live(live_port)
-            except Exception as exc:  # noqa: BLE001 - a port in use must not cost the log
-                note = Log(timestamp=_stamp(time.time()), level=Log.WARNING, name="groundstation",
-                           message=f"live view on port {live_port} unavailable: {exc}")
-                self._add("/log", Log.DESCRIPTOR.full_name, note.SerializeToString(), time.time())
+        self._live = _Live(live_port) if live_port else None
 
     def _schema(self, name: str, descriptor_set: bytes) -> None:
         if name not in self._schemas:
@@ -310,7 +316,13 @@ class _Writer:
         self._mcap.add_message(cid, log_time=ns, data=payload,
                                publish_time=ns if publish is None else int(publish * 1e9))
         if self._live is not None:
-            self._live.publish(topic, encoding, schema_name, schema_encoding, schema_data, payload, ns)
+            try:
+                self._live.publish(topic, encoding, schema_name, schema_encoding, schema_data, payload, ns)
+            except Exception as exc:  # noqa: BLE001 - a port in use must not cost the log
+                port, self._live = self._live.port, None
+                note = Log(timestamp=_stamp(t), level=Log.WARNING, name="groundstation",
+                           message=f"live view on port {port} unavailable: {exc}")
+                self._add("/log", Log.DESCRIPTOR.full_name, note.SerializeToString(), t)
 
     def write(self, item) -> None:
         kind, topic, data, t = item

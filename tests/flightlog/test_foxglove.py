@@ -14,9 +14,11 @@ from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.schema import build_file_descriptor_set
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from groundstation.assembly.assembly_file import load_assembly
+from groundstation.runtime.flight import Requests
 from groundstation.runtime.fly import fly
 from tests.peers import ROOT
 from tests.runtime.test_fly import config_with
@@ -27,18 +29,20 @@ ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
 
 @pytest.fixture(scope="module")
 def live_flight(tmp_path_factory):
-    """A short dry run served live; a client subscribed to /control records what it saw."""
+    """A dry run served live; a client subscribed to /control records what it saw. The flight tracks until the
+    client has seen it tracking (the operator's land request ends it), so a slow machine only makes it longer."""
     tmp = tmp_path_factory.mktemp("foxglove")
     cfg = config_with(tmp, endpoint="tcp/127.0.0.1:7488")
     log = tmp / "live.mcap"
     result = {}
-    flight = threading.Thread(target=lambda: result.update(res=fly(cfg, duration=2.0, log_path=log,
-                                                                   live_port=LIVE_PORT)))
+    requests = Requests()
+    flight = threading.Thread(target=lambda: result.update(res=fly(cfg, duration=60.0, log_path=log,
+                                                                   live_port=LIVE_PORT, requests=requests)))
     flight.start()
-    seen = {"advertised": set(), "messages": 0}
-    deadline = time.monotonic() + 20.0
+    seen = {"advertised": set(), "messages": 0, "tracking": 0, "status": []}
+    deadline = time.monotonic() + 90.0
     ws = None
-    while ws is None and time.monotonic() < deadline:
+    while ws is None and time.monotonic() < deadline and flight.is_alive():
         try:
             ws = connect(f"ws://127.0.0.1:{LIVE_PORT}", subprotocols=["foxglove.sdk.v1"], open_timeout=1)
         except OSError:
@@ -46,11 +50,13 @@ def live_flight(tmp_path_factory):
     assert ws is not None, "the live view never came up"
     with ws:
         subscribed = False
-        while time.monotonic() < deadline and seen["messages"] < 10:
+        while time.monotonic() < deadline and seen["tracking"] < 10:
             try:
                 msg = ws.recv(timeout=1.0)
             except TimeoutError:
                 continue
+            except ConnectionClosed:  # the flight ended: the assertions below say what was missed
+                break
             if isinstance(msg, str):
                 op = json.loads(msg)
                 if op["op"] == "advertise":
@@ -60,19 +66,24 @@ def live_flight(tmp_path_factory):
                             ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1,
                                                                                       "channelId": ch["id"]}]}))
                             subscribed = True
+                elif op["op"] == "status":  # e.g. "Unknown channel ID": a refused subscription
+                    seen["status"].append(op["message"])
             elif msg[0] == 0x01 and struct.unpack_from("<I", msg, 1)[0] == 1:
                 record = json.loads(msg[13:])
                 seen["messages"] += 1
+                seen["tracking"] += record["phase"] == "track"
                 seen["last"] = record
-    flight.join(60)
+    requests.land.set()
+    flight.join(120)
     return result["res"], log, seen
 
 
 def test_the_live_view_serves_the_flight(live_flight):
     res, _, seen = live_flight
-    assert res.phase == "done"
+    assert res.phase == "done" and res.reason == "operator land"
     assert {"/control", "/tf", "/state/pose", "/mocap/assembly"} <= seen["advertised"]
-    assert seen["messages"] >= 10 and "motors" in seen["last"] and "attitude_target" in seen["last"]
+    assert seen["status"] == []
+    assert seen["tracking"] >= 10 and "motors" in seen["last"] and "attitude_target" in seen["last"]
 
 
 def _messages(log, topic):
