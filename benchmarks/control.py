@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(max(1, args.repeats // 2)):
             with PyBulletBackend(asm) as be:
                 plan = FlightPlan(tuple(be.start_position), Circle((-0.5, 0, 1), 0.5, 8.0, 8.0))
-                factors.append(fly_simulated(asm, plan, be).metrics["realtime_factor"])
+                factors.append(fly_simulated(asm, plan, be).metrics.realtime_factor)
         rows.append([n, median(factors), min(factors)])
         ok &= n != 60 or median(factors) >= 10
     print_table("Closed loop in PyBullet, 240 Hz physics, 250 Hz control, lockstep: real-time factor",

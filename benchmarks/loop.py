@@ -34,6 +34,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from benchmarks._util import median, print_table
@@ -161,9 +162,9 @@ def _writer(kind: str):
 
 
 def _fly(path: str, cfg: Path, duration: float, log: Path, live: bool) -> dict:
-    """The flight's metrics (with ``loop``)."""
+    """The flight's metrics (with ``loop``), as ``fly --json`` prints them."""
     if path == "fly":
-        return fly(cfg, duration=duration, log_path=log, live_port=LIVE_PORT if live else None).metrics
+        return asdict(fly(cfg, duration=duration, log_path=log, live_port=LIVE_PORT if live else None).metrics)
     cmd = [sys.executable, "-m", "groundstation", "fly", str(cfg), "--duration", str(duration), "--log", str(log),
            "--json"] + (["--live", str(LIVE_PORT)] if live else [])
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=duration + 120)

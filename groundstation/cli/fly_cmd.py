@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import threading
+from dataclasses import asdict
 
 import click
 from rich.console import Console
@@ -95,19 +96,20 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         if live is not None:
             renderer.join(2.0)
             live.stop()
-    m = result.metrics
-    summary = {"phase": result.phase, "reason": result.reason, "log": str(result.log_path), **m}
+    summary = {"phase": result.phase, "reason": result.reason, "log": str(result.log_path),
+               **asdict(result.metrics)}
     if as_json:
         click.echo(json.dumps(json_safe(summary)))
     else:
         table = Table(title=f"Flight {flight}", show_header=False)
         for k in ("phase", "reason", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
                   "max_roll_error_deg", "max_motor_fraction"):
-            v = summary.get(k)
+            v = summary[k]
             table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
-        loop = m.get("loop", {})
-        table.add_row("loop", f"{loop.get('rate_hz', 0):.0f} Hz, p99 start error "
-                              f"{loop.get('start_error_ms_p99', 0):.3f} ms, {loop.get('overruns', 0)} overruns")
+        loop = result.metrics.loop
+        if loop is not None:
+            table.add_row("loop", f"{loop.rate_hz:.0f} Hz, p99 start error {loop.start_error_ms_p99:.3f} ms, "
+                                  f"{loop.overruns} overruns")
         Console().print(table)
     click.echo(f"log: {result.log_path}", err=True)
     if result.log_error is not None:

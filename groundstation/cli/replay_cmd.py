@@ -30,7 +30,7 @@ ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_
 def _cell(v) -> str:
     if isinstance(v, float):
         return "-" if math.isnan(v) else f"{v:.4g}"
-    if isinstance(v, list):
+    if isinstance(v, tuple):
         return ", ".join(_cell(x) for x in v) or "-"
     return str(v) if v not in (None, "") else "-"
 
@@ -84,9 +84,10 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
         plot_replays(replays, plot_path)
         click.echo(f"plot: {plot_path}", err=True)
     if as_json:
-        objs = [json_safe({"log": str(r.path), "complete": r.complete, **r.metrics,
+        objs = [json_safe({"log": str(r.path), "complete": r.complete, **asdict(r.metrics),
+                           "events": [{"t": t, "level": level, "text": text} for t, level, text in r.events],
                            "timeline": [{"t": t, "phase": p} for t, p in r.timeline],
-                           **({"rerun": r.rerun} if r.rerun is not None else {})}) for r in replays]
+                           **({"rerun": asdict(r.rerun)} if r.rerun is not None else {})}) for r in replays]
         click.echo(json.dumps(objs[0] if len(objs) == 1 else objs))
         return 0
     table = Table(title="flight logs")
@@ -94,10 +95,10 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
     for r in replays:
         table.add_column(r.path.name + ("" if r.complete else " (cut short)"))
     for key, label in ROWS:
-        table.add_row(label, *(_cell(r.metrics.get(key)) for r in replays))
-    if any(r.rerun for r in replays):
-        table.add_row("re-run: max rotor diff (u/u_max)", *(_cell(r.rerun["max_motor_diff"]) if r.rerun else "-"
-                                                            for r in replays))
+        table.add_row(label, *(_cell(getattr(r.metrics, key)) for r in replays))
+    if any(r.rerun is not None for r in replays):
+        table.add_row("re-run: max rotor diff (u/u_max)",
+                      *("-" if r.rerun is None else _cell(r.rerun.max_motor_diff) for r in replays))
     out = Console(width=160)
     out.print(table)
     for r in replays:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 
 import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import sim_physics_hz, writable_output
+from groundstation.cli.common import json_safe, sim_physics_hz, writable_output
 from groundstation.errors import UsageError
 
 EXIT_CRASHED = 1
@@ -57,7 +58,7 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
     with PyBulletBackend(asm, cfg) as backend:
         plan = FlightPlan(ground=tuple(backend.start_position), track=track)
         rec = fly_simulated(asm, plan, backend, Gains(), control_hz, allocation, FlightVolume())
-    metrics = dict(rec.metrics, assembly=assembly, trajectory=trajectory, n=asm.n,
+    metrics = asdict(rec.metrics) | dict(assembly=assembly, trajectory=trajectory, n=asm.n,
                    controllable_dof=asm.controllable_dof, crash_reason=rec.crash_reason)
     if plot_path is not None:
         from groundstation.runtime.plots import plot_flight
@@ -65,7 +66,7 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
         plot_flight(rec, plot_path, f"{trajectory}, n = {asm.n}, roll target {roll:g} deg", asm.params.u_max)
         metrics["plot"] = str(plot_path)
     if as_json:
-        click.echo(json.dumps(metrics))
+        click.echo(json.dumps(json_safe(metrics)))
     else:
         table = Table(title=f"Simulated {trajectory}: {assembly}", show_header=False)
         for k, v in metrics.items():

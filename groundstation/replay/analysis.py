@@ -26,7 +26,7 @@ from groundstation.control.state import RigidState, Setpoint
 from groundstation.errors import ConfigError
 from groundstation.replay.reader import open_log
 from groundstation.rotations import quat_to_matrix
-from groundstation.runtime.metrics import FlightMetrics
+from groundstation.runtime.metrics import FlightFigures, FlightMetrics, figures_of
 
 SERIES_POINTS = 20_000
 """Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
@@ -69,21 +69,35 @@ class Series:
     """(k,) index into PHASES."""
 
 
+@dataclass(frozen=True)
+class RerunFigures:
+    """The logged commands against the current code's, over the periods replayed."""
+
+    periods: int
+    max_motor_diff: float
+    """Largest |difference| of a rotor command, fraction of u_max."""
+    rms_motor_diff: float
+    """RMS over periods and rotors, fraction of u_max (NaN: no period)."""
+    max_force_diff_n: float
+    """Largest |difference| of a wrench force component, N."""
+    max_torque_diff_nm: float
+    """Largest |difference| of a wrench torque component, N m."""
+
+
 @dataclass
 class RerunStats:
-    """The logged commands against the current code's, over the periods replayed."""
+    """Running sums behind :class:`RerunFigures`."""
 
     periods: int = 0
     max_motor_diff: float = 0.0
-    """Largest |difference| of a rotor command, fraction of u_max."""
     sum_sq: float = 0.0
     max_force_diff_n: float = 0.0
     max_torque_diff_nm: float = 0.0
 
-    def result(self) -> dict:
-        return {"periods": self.periods, "max_motor_diff": self.max_motor_diff,
-                "rms_motor_diff": math.sqrt(self.sum_sq / self.periods) if self.periods else float("nan"),
-                "max_force_diff_n": self.max_force_diff_n, "max_torque_diff_nm": self.max_torque_diff_nm}
+    def result(self) -> RerunFigures:
+        return RerunFigures(self.periods, self.max_motor_diff,
+                            math.sqrt(self.sum_sq / self.periods) if self.periods else math.nan,
+                            self.max_force_diff_n, self.max_torque_diff_nm)
 
 
 class Rerun:
@@ -147,13 +161,46 @@ class _Modules:
             self.loss_max = np.fmax(self.loss_max, loss)
 
     def result(self) -> dict:
-        out = {"battery_v_first": self.battery_first, "battery_v_last": self.battery_last,
-               "battery_v_min": [] if self.battery_min is None else self.battery_min.tolist()}
+        """The :class:`ReplayFigures` battery and link fields (empty tuples without telemetry)."""
+        out = {"battery_v_first": tuple(self.battery_first), "battery_v_last": tuple(self.battery_last),
+               "battery_v_min": () if self.battery_min is None else tuple(self.battery_min.tolist()),
+               "link_latency_ms_mean": (), "link_latency_ms_max": (), "link_loss_max": ()}
         if self.latency_max is not None:
             mean = np.where(self.latency_n > 0, self.latency_sum / np.maximum(self.latency_n, 1), np.nan)
-            out |= {"link_latency_ms_mean": (mean * 1e3).tolist(), "link_latency_ms_max": (self.latency_max * 1e3)
-                    .tolist(), "link_loss_max": self.loss_max.tolist()}
+            out |= {"link_latency_ms_mean": tuple((mean * 1e3).tolist()),
+                    "link_latency_ms_max": tuple((self.latency_max * 1e3).tolist()),
+                    "link_loss_max": tuple(self.loss_max.tolist())}
         return out
+
+
+@dataclass(frozen=True)
+class ReplayFigures(FlightFigures):
+    """The flight's own figures recomputed from its log, with what only the log has in one place. Per-module
+    tuples are in module order; empty when the log has no telemetry."""
+
+    overruns: int
+    """Late periods (the loop's own count when the log has it)."""
+    loop_period_error_max_ms: float
+    mocap_rate_hz: float
+    """Accepted poses per second of flight (NaN: no mocap counters logged)."""
+    mocap_rejected: int
+    mocap_malformed: int
+    mocap_missed: int
+    duration_s: float
+    """Flight time from the first to the last period analysed, s."""
+    phase: str
+    """The state the flight ended in."""
+    reason: str
+    """Why it ended early ("" when it flew its plan)."""
+    stalls: int
+    battery_v_first: tuple[float, ...]
+    battery_v_last: tuple[float, ...]
+    battery_v_min: tuple[float, ...]
+    link_latency_ms_mean: tuple[float, ...]
+    """Mean command round trip per module, ms."""
+    link_latency_ms_max: tuple[float, ...]
+    link_loss_max: tuple[float, ...]
+    """Largest lost share of commands per module."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,13 +211,13 @@ class Replay:
     complete: bool
     """The file ended cleanly (False: cut short by a crash; everything up to the cut was read)."""
     metadata: dict
-    metrics: dict
+    metrics: ReplayFigures
     events: list
     """(flight time s, level, text), every event the flight logged."""
     timeline: list
     """(flight time s, phase) at every change of phase."""
     series: Series
-    rerun: dict | None
+    rerun: RerunFigures | None
 
 
 def _config(metadata: dict, src: str) -> dict:
@@ -248,16 +295,15 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     end = summary.get("phase")
     if end and timeline and timeline[-1][1] != end:  # the end state is only in the summary and the events
         timeline.append((metrics.t_last, end))
-    m = metrics.result()
     duration = (metrics.t_last - metrics.t_first) if metrics.periods > 1 else 0.0
-    m |= {"overruns": loop_summary.get("overruns", overruns), "loop_period_error_max_ms": max_start_error * 1e3,
-          "mocap_rate_hz": mocap.get("accepted", 0) / duration if duration > 0 and mocap else float("nan"),
-          "mocap_rejected": mocap.get("rejected", 0), "mocap_malformed": mocap.get("malformed", 0),
-          "mocap_missed": mocap.get("missed", 0), "duration_s": duration,
-          "phase": summary.get("phase", timeline[-1][1] if timeline else ""), "reason": summary.get("reason", ""),
-          "stalls": sum("loop stalled" in text for _, _, text in events),
-          "events": [{"t": t, "level": level, "text": text} for t, level, text in events]}
-    m |= modules.result()
+    m = ReplayFigures(
+        **figures_of(metrics.result()), overruns=loop_summary.get("overruns", overruns),
+        loop_period_error_max_ms=max_start_error * 1e3,
+        mocap_rate_hz=mocap.get("accepted", 0) / duration if duration > 0 and mocap else math.nan,
+        mocap_rejected=mocap.get("rejected", 0), mocap_malformed=mocap.get("malformed", 0),
+        mocap_missed=mocap.get("missed", 0), duration_s=duration,
+        phase=summary.get("phase", timeline[-1][1] if timeline else ""), reason=summary.get("reason", ""),
+        stalls=sum("loop stalled" in text for _, _, text in events), **modules.result())
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
                np.array([r[3] for r in rows]), np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),

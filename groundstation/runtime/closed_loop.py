@@ -8,7 +8,7 @@ Pre-flight checks (hover feasibility from the allocation, the reference inside t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -24,6 +24,7 @@ from groundstation.control.trajectory import FlightPlan
 from groundstation.errors import PreflightError
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import LoopStats, SimClock
+from groundstation.runtime.metrics import FlightSummary
 
 AllocationMode = Literal["clip", "bounded"]
 
@@ -50,8 +51,8 @@ class FlightRecord:
     phase: np.ndarray
     wall_s: float
     crashed: bool
-    crash_reason: str = ""
-    metrics: dict = field(default_factory=dict)
+    crash_reason: str
+    metrics: FlightSummary
 
 
 def hover_check(model: ControlModel, plan: FlightPlan) -> None:
@@ -130,16 +131,12 @@ def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBacken
     return record_of(flight, time.perf_counter() - wall0, plan.duration, stats)
 
 
-def flight_summary(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> dict:
-    """The flight's figures (:class:`~groundstation.runtime.metrics.FlightMetrics`) with its wall time, plan and
-    end, and the loop's timing."""
-    metrics = flight.metrics.result()
-    sim_s = metrics["simulated_s"]
-    metrics |= {"realtime_factor": sim_s / wall_s if wall_s > 0 else float("inf"), "planned_s": planned_s,
-                "crashed": flight.phase == Phase.EMERGENCY, "stalls": flight.stalls}
-    if stats is not None:
-        metrics["loop"] = stats.summary()
-    return metrics
+def flight_summary(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> FlightSummary:
+    """The flight's figures with its wall time, plan and end, and the loop's timing."""
+    figures = flight.metrics.result()
+    return FlightSummary.of(figures, realtime_factor=figures.simulated_s / wall_s if wall_s > 0 else float("inf"),
+                            planned_s=planned_s, crashed=flight.phase == Phase.EMERGENCY, stalls=flight.stalls,
+                            loop=stats.summary() if stats is not None else None)
 
 
 def record_of(flight: Flight, wall_s: float, planned_s: float, stats: LoopStats | None = None) -> FlightRecord:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Literal, Protocol
 
 import numpy as np
@@ -485,7 +485,7 @@ class Flight:
             if not self.phase.final:
                 self._emergency(self._t_last(), "loop ended")
         if self.log is not None:
-            self.log.record("/loop/timing", stats.summary(), self._log_time(self._t_last()))
+            self.log.record("/loop/timing", asdict(stats.summary()), self._log_time(self._t_last()))
         return stats
 
 

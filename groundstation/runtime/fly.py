@@ -54,6 +54,7 @@ from groundstation.runtime.closed_loop import (
 from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, Requests
 from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config, mocap_security
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopStats, WallClock, realtime_priority
+from groundstation.runtime.metrics import FlightSummary
 
 PREFLIGHT_TIMEOUT_S = 3.0
 PREFLIGHT_WATCH_S = 1.0
@@ -85,7 +86,7 @@ class FlyResult:
     """Final state: ``done`` (landed, disarmed), ``emergency`` (motors stopped) or ``aborted`` (never armed)."""
     reason: str
     """Why the flight ended early ("" when it flew its plan; "operator land" when the operator cut it short)."""
-    metrics: dict
+    metrics: FlightSummary
     events: list = field(default_factory=list)
     log_error: str | None = None
     """Why the log writer failed (None: the log is complete)."""
@@ -285,7 +286,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         stats, wall_s = _run(flight, p.cfg, log, requests, handle_signals, to_log)
         ended_cleanly[0] = flight.phase in (Phase.DONE, Phase.ABORTED)
         metrics = flight_summary(flight, wall_s, plan.duration, stats)
-        log.record("/flight/summary", {k: v for k, v in metrics.items() if k != "loop"} | {
+        log.record("/flight/summary", {k: v for k, v in asdict(metrics).items() if k != "loop"} | {
             "phase": flight.phase, "reason": flight.reason}, to_log(time.monotonic()))
     return FlyResult(p.log_file, flight.phase, flight.reason, metrics, flight.events, log.error)
 

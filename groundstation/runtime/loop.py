@@ -117,6 +117,25 @@ def realtime_priority(priority: int) -> Iterator[bool]:
         os.sched_setscheduler(0, old_policy, old_param)
 
 
+@dataclass(frozen=True)
+class LoopSummary:
+    """Timing of a fixed-rate run (``/loop/timing`` in a flight log); times in ms, percentiles of |start error|."""
+
+    periods: int
+    rate_hz: float
+    overruns: int
+    """Periods whose step ended after the next deadline."""
+    realtime: bool
+    """The loop thread ran under real-time scheduling."""
+    start_error_ms_p50: float
+    start_error_ms_p99: float
+    start_error_ms_max: float
+    compute_ms_p50: float
+    compute_ms_p99: float
+    overrun_starts: tuple[float, ...]
+    """Clock time at which each overrunning period started, s."""
+
+
 @dataclass
 class LoopStats:
     """Per-period timing of a run, seconds."""
@@ -135,14 +154,12 @@ class LoopStats:
     t0: float | None = None
     """Clock time period 0 was scheduled at (None before the loop starts)."""
 
-    def summary(self) -> dict:
+    def summary(self) -> LoopSummary:
         e = np.abs(np.array(self.start_error)) * 1e3 if self.start_error else np.zeros(1)
         c = np.array(self.compute) * 1e3 if self.compute else np.zeros(1)
-        return {"periods": len(self.start_error), "rate_hz": 1.0 / self.period, "overruns": self.overruns,
-                "realtime": self.realtime,
-                "start_error_ms_p50": float(np.percentile(e, 50)), "start_error_ms_p99": float(np.percentile(e, 99)),
-                "start_error_ms_max": float(e.max()), "compute_ms_p50": float(np.percentile(c, 50)),
-                "compute_ms_p99": float(np.percentile(c, 99)), "overrun_starts": list(self.overrun_starts)}
+        return LoopSummary(len(self.start_error), 1.0 / self.period, self.overruns, self.realtime,
+                           float(np.percentile(e, 50)), float(np.percentile(e, 99)), float(e.max()),
+                           float(np.percentile(c, 50)), float(np.percentile(c, 99)), tuple(self.overrun_starts))
 
 
 def run_fixed_rate(step: Callable[[int, float], bool], rate_hz: float, clock: Clock,

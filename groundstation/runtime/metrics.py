@@ -9,16 +9,78 @@ so a replayed log reports what the flight reported.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from groundstation.control.phase import Phase
 from groundstation.rotations import rotation_angle
+from groundstation.runtime.loop import LoopSummary
 
 MEASURED = (Phase.SETTLE, Phase.TRACK, Phase.HOLD)
 """Phases over which attitude errors and saturation count (take-off and landing ramps excluded)."""
 SATURATED = 0.999
 """A rotor at this fraction of u_max or more, or at the complement or less, is saturated (at a bound)."""
+
+
+@dataclass(frozen=True)
+class FlightFigures:
+    """Tracking, attitude, motor and loop figures of one flight; NaN where a phase was never reached. Position
+    errors over the tracking phase, attitude errors and saturation over the airborne phases (:data:`MEASURED`)."""
+
+    pos_rmse_m: float
+    """RMS of the position error's norm, m."""
+    max_pos_error_m: float
+    """Largest position error norm, m."""
+    pos_rmse_xyz_m: tuple[float, float, float]
+    """RMS per world axis, m."""
+    max_pos_error_xyz_m: tuple[float, float, float]
+    """Largest |error| per world axis, m."""
+    max_orientation_error_deg: float
+    """Largest angle between the attitude and its target, deg."""
+    orientation_error_p50_deg: float
+    orientation_error_p95_deg: float
+    max_roll_error_deg: float
+    """Largest |roll - roll target| (ZYX angles), deg."""
+    max_yaw_error_deg: float
+    max_motor_fraction: float
+    """Largest rotor command, fraction of u_max."""
+    saturation_fraction: tuple[float, ...]
+    """Per module: share of airborne periods in which one of its rotors was at a bound."""
+    mocap_age_p99_ms: float
+    """99th percentile of the age of the pose a period used, ms."""
+    loop_period_error_p50_ms: float
+    """Median |actual - scheduled| start of a period, ms."""
+    loop_period_error_p99_ms: float
+    compute_p99_ms: float
+    """99th percentile of a period's compute time, ms."""
+    periods: int
+    simulated_s: float
+    """Flight time covered by the periods (their count times the period), s."""
+
+
+@dataclass(frozen=True)
+class FlightSummary(FlightFigures):
+    """A flown flight's figures with its wall time, plan and end, and the loop's timing (``fly --json``)."""
+
+    realtime_factor: float
+    """Flight time per wall-clock second (1 for a real-time flight; above 1 in lockstep simulation)."""
+    planned_s: float
+    """Duration of the flight plan, take-off to landing, s."""
+    crashed: bool
+    """The flight ended in an emergency stop."""
+    stalls: int
+    """Loop stalls the flight logged."""
+    loop: LoopSummary | None = None
+
+    @classmethod
+    def of(cls, figures: FlightFigures, **rest) -> FlightSummary:
+        return cls(**figures_of(figures), **rest)
+
+
+def figures_of(figures: FlightFigures) -> dict:
+    """The :class:`FlightFigures` fields of ``figures`` (or of a subclass instance) by name, unconverted."""
+    return {f.name: getattr(figures, f.name) for f in fields(FlightFigures)}
 
 
 class Histogram:
@@ -138,29 +200,29 @@ class FlightMetrics:
         self.start_error.add(start_error)
         self.compute.add(compute)
 
-    def result(self) -> dict:
-        """The figures (NaN where a phase was never reached); keys as ``groundstation fly --json`` prints."""
+    def result(self) -> FlightFigures:
+        """The figures so far."""
         p = self.position
         tracked = p.n > 0
         airborne = self.airborne > 0
-        sim_s = self.t_last + self.dt if self.periods > 1 else 0.0
-        return {
-            "pos_rmse_m": p.rms(),
-            "max_pos_error_m": p.norm_max if tracked else float("nan"),
-            "pos_rmse_xyz_m": (np.sqrt(p.sq / p.n) if tracked else np.full(3, np.nan)).tolist(),
-            "max_pos_error_xyz_m": (p.max if tracked else np.full(3, np.nan)).tolist(),
-            "max_orientation_error_deg": self.orientation.max if airborne else float("nan"),
-            "orientation_error_p50_deg": self.orientation.percentile(50),
-            "orientation_error_p95_deg": self.orientation.percentile(95),
-            "max_roll_error_deg": self.max_roll_error if airborne else float("nan"),
-            "max_yaw_error_deg": self.max_yaw_error if airborne else float("nan"),
-            "max_motor_fraction": self.max_motor,
-            "saturation_fraction": (self.saturated / self.airborne).tolist() if airborne
-            else [0.0] * self.saturated.size,
-            "mocap_age_p99_ms": self.mocap_age.percentile(99) * 1e3,
-            "loop_period_error_p50_ms": self.start_error.percentile(50) * 1e3,
-            "loop_period_error_p99_ms": self.start_error.percentile(99) * 1e3,
-            "compute_p99_ms": self.compute.percentile(99) * 1e3,
-            "periods": self.periods,
-            "simulated_s": sim_s,
-        }
+        nan3 = (math.nan,) * 3
+        return FlightFigures(
+            pos_rmse_m=p.rms(),
+            max_pos_error_m=p.norm_max if tracked else math.nan,
+            pos_rmse_xyz_m=tuple(np.sqrt(p.sq / p.n).tolist()) if tracked else nan3,
+            max_pos_error_xyz_m=tuple(p.max.tolist()) if tracked else nan3,
+            max_orientation_error_deg=self.orientation.max if airborne else math.nan,
+            orientation_error_p50_deg=self.orientation.percentile(50),
+            orientation_error_p95_deg=self.orientation.percentile(95),
+            max_roll_error_deg=self.max_roll_error if airborne else math.nan,
+            max_yaw_error_deg=self.max_yaw_error if airborne else math.nan,
+            max_motor_fraction=self.max_motor,
+            saturation_fraction=tuple((self.saturated / self.airborne).tolist()) if airborne
+            else (0.0,) * self.saturated.size,
+            mocap_age_p99_ms=self.mocap_age.percentile(99) * 1e3,
+            loop_period_error_p50_ms=self.start_error.percentile(50) * 1e3,
+            loop_period_error_p99_ms=self.start_error.percentile(99) * 1e3,
+            compute_p99_ms=self.compute.percentile(99) * 1e3,
+            periods=self.periods,
+            simulated_s=self.t_last + self.dt if self.periods > 1 else 0.0,
+        )

@@ -80,6 +80,6 @@ def test_figure8_over_two_emulated_dongles(tmp_path):
         cfg.write_text(text)
         with emulated_crazyradios(19948):
             res = fly(cfg, duration=3.0, log_path=tmp_path / "radio.mcap")
-        assert res.phase == "done" and res.nominal and res.metrics["pos_rmse_m"] < 0.03, (res.phase, res.reason)
+        assert res.phase == "done" and res.nominal and res.metrics.pos_rmse_m < 0.03, (res.phase, res.reason)
     finally:
         stop_peer(peer, th)

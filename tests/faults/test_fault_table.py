@@ -149,7 +149,7 @@ def _landed_on_the_genuine_stream(res, log):
     assert res.reason.startswith("mocap fault: a second publisher on mocap/assembly/pose")
     stats = [json.loads(d) for _, d in _records(log, "/mocap/stats")]
     assert stats[-1]["foreign"] > 0 and stats[-1]["accepted"] > 500  # the genuine stream kept flowing
-    assert res.metrics["max_orientation_error_deg"] < 15.0  # landed upright
+    assert res.metrics.max_orientation_error_deg < 15.0  # landed upright
 
 
 def _records(log, topic):
@@ -221,7 +221,7 @@ def f_loop_stall_200ms(cli, tmp_path):
               on_period=_stalling(0.2))
     assert res.phase == "emergency" and res.reason.startswith("loop stalled 2"), res.reason
     assert "the simulator ran on open-loop over it" in res.reason
-    assert analyse(log).metrics["stalls"] == 1
+    assert analyse(log).metrics.stalls == 1
 
 
 @fault("the control loop stalls 50 ms in flight", "a warning names it; the flight goes on")
@@ -282,7 +282,7 @@ def f_full_disk(cli, tmp_path):
         assert "landed early: log writer failed" in run.stderr
         kept = shutil.copy(log, tmp_path / "kept.mcap")
     r = analyse(kept)  # cut short, read up to the cut
-    assert not r.complete and r.metrics["periods"] > 250
+    assert not r.complete and r.metrics.periods > 250
 
 
 # -- the Crazyflie link: a loopback relay between the ground station and the simulated modules ----------------------
@@ -355,7 +355,7 @@ def f_link_duplication(cli, tmp_path):
 def f_link_loss_2_percent(cli, tmp_path):
     with _relayed(tmp_path, loss=0.02) as cfg:
         res = fly(cfg, duration=3.0, log_path=tmp_path / "lossy.mcap")
-    assert res.phase == "done" and res.nominal and res.metrics["pos_rmse_m"] < 0.03
+    assert res.phase == "done" and res.nominal and res.metrics.pos_rmse_m < 0.03
 
 
 @fault("crazyflie parameters over a link losing 5 %", "the check completes (repeats what is lost)")

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -20,11 +21,11 @@ from groundstation.flightlog.mcap_log import recover
 from groundstation.replay.analysis import analyse
 from groundstation.replay.export import export_csv
 from groundstation.runtime.fly import fly
-from groundstation.runtime.metrics import FlightMetrics
+from groundstation.runtime.metrics import FlightFigures
 from tests.peers import ROOT, start_peer, stop_peer
 from tests.runtime.test_fly import config_with, sitl_config
 
-FIGURES = list(FlightMetrics(2).result())
+FIGURES = [f.name for f in fields(FlightFigures)]
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,7 @@ def sim_flight(tmp_path_factory):
 
 
 def same(a, b) -> bool:
-    if isinstance(a, list):
+    if isinstance(a, tuple):
         return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
     if isinstance(a, float) and math.isnan(a):
         return math.isnan(b)
@@ -50,8 +51,9 @@ def test_replay_reproduces_the_flights_own_figures(sim_flight):
     r = analyse(log)
     assert r.complete
     for key in FIGURES:
-        assert same(r.metrics[key], res.metrics[key]), (key, r.metrics[key], res.metrics[key])
-    assert r.metrics["phase"] == "done" and r.metrics["overruns"] == res.metrics["loop"]["overruns"]
+        a, b = getattr(r.metrics, key), getattr(res.metrics, key)
+        assert same(a, b), (key, a, b)
+    assert r.metrics.phase == "done" and r.metrics.overruns == res.metrics.loop.overruns
     assert [p for _, p in r.timeline] == ["takeoff", "settle", "track", "hold", "landing", "done"]
     assert [text for _, _, text in r.events if "->" in text] == [text for _, _, text in res.events]
 
@@ -65,11 +67,11 @@ def test_position_rmse_recomputed_from_the_csv(sim_flight, tmp_path):
     p = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows])
     ref = np.array([[float(r[k]) for k in ("x_ref_m", "y_ref_m", "z_ref_m")] for r in rows])
     e = np.linalg.norm(p - ref, axis=1)
-    assert np.sqrt(np.mean(e**2)) == pytest.approx(res.metrics["pos_rmse_m"], rel=1e-9)
-    assert e.max() == pytest.approx(res.metrics["max_pos_error_m"], rel=1e-9)
+    assert np.sqrt(np.mean(e**2)) == pytest.approx(res.metrics.pos_rmse_m, rel=1e-9)
+    assert e.max() == pytest.approx(res.metrics.max_pos_error_m, rel=1e-9)
     roll_err = np.array([float(r["roll_deg"]) - float(r["roll_target_deg"]) for r in rows])
     assert abs(np.mean([float(r["roll_target_deg"]) for r in rows]) + 5.0) < 1e-9  # the -5 deg target is logged
-    assert np.abs(roll_err).max() <= res.metrics["max_roll_error_deg"] + 1e-9
+    assert np.abs(roll_err).max() <= res.metrics.max_roll_error_deg + 1e-9
     with open(events) as fh:
         assert any("settle -> track" in r["text"] for r in csv.DictReader(fh))
 
@@ -96,18 +98,18 @@ def test_every_record_is_on_one_clock(sim_flight):
 def test_rerun_matches_and_finds_gain_changes(sim_flight, tmp_path):
     _, log = sim_flight
     same_code = analyse(log, rerun=True).rerun
-    assert same_code["periods"] > 1000 and same_code["max_motor_diff"] < 1e-9
+    assert same_code.periods > 1000 and same_code.max_motor_diff < 1e-9
     from groundstation.control.geometric import Gains
 
     stiffer = analyse(log, rerun=True, gains=Gains(attitude_hz=6.0)).rerun
-    assert stiffer["max_motor_diff"] > 0.01 and stiffer["max_torque_diff_nm"] > 1e-3
+    assert stiffer.max_motor_diff > 0.01 and stiffer.max_torque_diff_nm > 1e-3
 
 
 def test_window(sim_flight):
     _, log = sim_flight
     r = analyse(log, t_from=5.0, t_to=7.0)
     assert r.series.t.min() >= 5.0 and r.series.t.max() <= 7.0
-    assert r.metrics["periods"] == pytest.approx(2.0 * 250, abs=2)
+    assert r.metrics.periods == pytest.approx(2.0 * 250, abs=2)
 
 
 def _copy_without(src, dst, drop: set[str]) -> None:
@@ -137,8 +139,8 @@ def test_log_without_telemetry_channels(sim_flight, tmp_path):
     _copy_without(log, bare, {"/backend/telemetry", "/mocap/stats", "/loop/timing", "/flight/summary"})
     r = analyse(bare)
     for key in FIGURES:
-        assert same(r.metrics[key], res.metrics[key]), key
-    assert r.metrics["battery_v_min"] == [] and math.isnan(r.metrics["mocap_rate_hz"])
+        assert same(getattr(r.metrics, key), getattr(res.metrics, key)), key
+    assert r.metrics.battery_v_min == () and math.isnan(r.metrics.mocap_rate_hz)
 
 
 def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
@@ -149,13 +151,13 @@ def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
     cut.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.6)])
     partial = analyse(cut)
     full = analyse(log)
-    assert not partial.complete and 0 < partial.metrics["periods"] < full.metrics["periods"]
+    assert not partial.complete and 0 < partial.metrics.periods < full.metrics.periods
     assert partial.metadata["config"]["trajectory"]["roll_deg"] == -5.0
     recovered = tmp_path / "recovered.mcap"
     counts = recover(cut, recovered)
     assert not counts["source_was_complete"]
     again = analyse(recovered)
-    assert again.complete and again.metrics["periods"] == partial.metrics["periods"]
+    assert again.complete and again.metrics.periods == partial.metrics.periods
     assert again.metadata == partial.metadata and again.metadata["code_version"]
     with open(recovered, "rb") as fh:
         names = {m.name for m in make_reader(fh).iter_metadata()}
@@ -175,7 +177,7 @@ def test_sigkill_of_a_flight_and_its_writer_then_replay(tmp_path):
     recovered = tmp_path / "recovered.mcap"
     recover(log, recovered)
     r = analyse(recovered)
-    assert r.metrics["periods"] > 250 and r.metadata["config"]["rate_hz"] == 250
+    assert r.metrics.periods > 250 and r.metadata["config"]["rate_hz"] == 250
     assert r.timeline[0][1] == "takeoff" and r.timeline[-1][1] != "done"  # it never landed
 
 
@@ -191,9 +193,9 @@ def test_a_hardware_backend_flight_replays_with_battery_and_link(tmp_path):
         stop_peer(peer, th)
     r = analyse(log)
     for key in FIGURES:
-        assert same(r.metrics[key], res.metrics[key]), key
-    assert r.metrics["battery_v_min"] == pytest.approx([4.0, 4.0])
-    assert all(0 < v < 14 for v in r.metrics["link_latency_ms_max"]) and r.metrics["link_loss_max"] == [0.0, 0.0]
+        assert same(getattr(r.metrics, key), getattr(res.metrics, key)), key
+    assert r.metrics.battery_v_min == pytest.approx((4.0, 4.0))
+    assert all(0 < v < 14 for v in r.metrics.link_latency_ms_max) and r.metrics.link_loss_max == (0.0, 0.0)
 
 
 def test_not_a_flight_log(tmp_path):

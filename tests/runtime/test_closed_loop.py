@@ -24,9 +24,9 @@ def test_toy_assembly_figure8_holds_roll(roll_deg):
                           Figure8(0.6, 8.0, 1.0, 8.0, attitude=Attitude(roll=np.radians(roll_deg))))
         rec = fly_simulated(asm, plan, be)
     m = rec.metrics
-    assert not m["crashed"]
-    assert m["max_roll_error_deg"] <= 1.0
-    assert m["pos_rmse_m"] < 0.01 and m["max_pos_error_m"] < 0.02
+    assert not m.crashed
+    assert m.max_roll_error_deg <= 1.0
+    assert m.pos_rmse_m < 0.01 and m.max_pos_error_m < 0.02
     airborne = np.isin(rec.phase, ("track",))
     roll = np.degrees(np.arctan2(rec.rotation[airborne, 2, 1], rec.rotation[airborne, 2, 2]))
     assert np.all(np.abs(roll - roll_deg) <= 1.0)
@@ -62,5 +62,5 @@ def test_paper_vi_a_circle_with_identity_attitude():
     with PyBulletBackend(asm, cfg) as be:
         rec = fly_simulated(asm, FlightPlan(tuple(be.start_position), Circle((-0.5, 0, 1), 0.5, 8.0, 8.0)), be)
     m = rec.metrics
-    assert not m["crashed"] and m["max_orientation_error_deg"] < 3.0
-    assert m["pos_rmse_m"] < 0.02
+    assert not m.crashed and m.max_orientation_error_deg < 3.0
+    assert m.pos_rmse_m < 0.02

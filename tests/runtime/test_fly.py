@@ -52,7 +52,7 @@ def test_short_figure8_end_to_end(tmp_path):
     statuses = []
     res = fly(cfg, duration=4.0, log_path=log, on_status=statuses.append)
     assert res.phase == "done" and res.reason == ""
-    assert res.metrics["pos_rmse_m"] < 0.03 and res.metrics["max_roll_error_deg"] < 1.0
+    assert res.metrics.pos_rmse_m < 0.03 and res.metrics.max_roll_error_deg < 1.0
     assert statuses and all(s.battery_v is None for s in statuses)  # the simulator has no battery
     rates = [s.rate_hz for s in statuses if s.rate_hz is not None]
     assert statuses[0].rate_hz is None and rates and min(rates) > 0  # measured from the periods run (the rate
@@ -64,8 +64,8 @@ def test_short_figure8_end_to_end(tmp_path):
     assert counts["/mocap/assembly"] > 100 * 8  # ~100 Hz over the whole flight
     assert "config" in meta and "code_version" in meta and "assembly" in meta
     assert json.loads(meta["config"]["value"])["rate_hz"] == 250
-    loop = res.metrics["loop"]
-    assert loop["rate_hz"] == 250 and loop["periods"] > 250 * 8
+    loop = res.metrics.loop
+    assert loop.rate_hz == 250 and loop.periods > 250 * 8
 
 
 @pytest.mark.parametrize("fault, expect_phase, reason", [
@@ -108,7 +108,7 @@ def test_operator_land_request(tmp_path):
     res = fly(cfg, duration=8.0, log_path=tmp_path / "f.mcap", requests=req,
               on_period=lambda t: req.land.set() if t > 5.0 else None)
     assert res.phase == "done" and "operator land" in res.reason
-    assert res.metrics["simulated_s"] < 5.0 + 3.0 + 1.0
+    assert res.metrics.simulated_s < 5.0 + 3.0 + 1.0
 
 
 def test_bad_inputs_never_arm(tmp_path):
@@ -195,7 +195,7 @@ def test_hardware_backend_flies_twice_through_simulated_modules(sim_peer, tmp_pa
     track = [s for s in statuses if s.phase == "track"]
     assert track and all(s.battery_v == pytest.approx(4.0) and 0.2 < s.worst_motor <= 1.0 for s in track)
     assert max(s.mocap_age for s in track) < 0.25
-    assert res.metrics["pos_rmse_m"] < 0.03  # from mocap: no physics truth in this process
+    assert res.metrics.pos_rmse_m < 0.03  # from mocap: no physics truth in this process
     counts, meta, logs, motors = read_log(log)
     assert json.loads(meta["config"]["value"])["backend"]["kind"] == kind
     assert counts["/mocap/assembly"] > 100 * 8 and counts["/backend/telemetry"] > 0

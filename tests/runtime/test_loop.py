@@ -46,7 +46,7 @@ def test_deadlines_overruns_and_between():
     assert stats.compute[3] == pytest.approx(0.025)
     assert left[:3] == [0.009, 0.009, 0.009] and left[3] == pytest.approx(0.005)  # to 0.06 from 0.055
     s = stats.summary()
-    assert s["periods"] == 7 and s["overruns"] == 1 and s["realtime"] is False
+    assert s.periods == 7 and s.overruns == 1 and s.realtime is False
 
 
 def test_background_thread_waits_for_the_end_of_a_period():
