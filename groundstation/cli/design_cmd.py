@@ -112,19 +112,15 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
                    f"({len(rows)} candidates solved)", err=True)
         return EXIT_INFEASIBLE
     if out_path is not None:
-        save_assembly(out_path, sel.best)
+        save_assembly(out_path, sel.best.record)
     if fig_dir is not None:
-        import numpy as np
-
-        from groundstation.assembly.assembly_file import assembly_from_record
         from groundstation.design.figures import plot_assembly, plot_costs, plot_polytope
 
-        assembly = assembly_from_record(sel.best, "the selected design")
-        plot_assembly(assembly, fig_dir / "fig1_assembly.png")
+        plot_assembly(sel.best.assembly, fig_dir / "fig1_assembly.png")
         plot_costs(rows, sel.n, fig_dir / "fig5_costs.png")
-        plot_polytope(assembly, np.array(sel.best["wrenches"])[:, :3], fig_dir / "fig6_polytope.png")
+        plot_polytope(sel.best.assembly, sel.best.wrenches[:, :3], fig_dir / "fig6_polytope.png")
     if as_json:
-        click.echo(json.dumps(sel.best))
+        click.echo(json.dumps(sel.best.record))
     else:
         _print_ranking(sel, task.name, rows)
     for label, path in (("assembly", out_path), ("table", table_path), ("figures", fig_dir)):

@@ -19,10 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.assembly.assembly import Assembly
+from groundstation.assembly.assembly_file import assembly_from_record
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.design.enumeration import SamplingPolicy, enumerate_levels
-from groundstation.design.optimize import SolverOptions, optimize
+from groundstation.design.optimize import SolverOptions, Verification, optimize
 from groundstation.design.task import Task
 from groundstation.errors import ConfigError
 
@@ -57,11 +59,37 @@ class CandidateResult:
 
 
 @dataclass(frozen=True, eq=False)
+class SelectedDesign:
+    """The design a sweep chose, read back from the assembly-file record it will be saved as (so what is used is
+    what a later ``fly`` or ``simulate`` loads)."""
+
+    row: CandidateResult
+    assembly: Assembly
+    wrenches: np.ndarray
+    """(k, 6) task wrenches it was solved for: force (N) then torque (N m), body frame."""
+    verification: Verification
+    record: dict
+    """The assembly-file record (geometry plus the design's inputs, solver statistics and checks)."""
+
+    @classmethod
+    def of(cls, row: CandidateResult, record: dict, src: str) -> SelectedDesign:
+        """From a candidate's row and record; a malformed record (a hand-edited results file ``src``) is a
+        ConfigError naming it."""
+        assembly = assembly_from_record(record, src)
+        try:
+            wrenches = np.array(record["wrenches"], float).reshape(-1, 6)
+            verification = Verification(**record["verification"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"the record of {row.code} is not a design record: {exc}", path=src) from None
+        return cls(row, assembly, wrenches, verification, record)
+
+
+@dataclass(frozen=True, eq=False)
 class Selection:
     """Outcome of a sweep: the best design (if any), the n it was found at, and every candidate's row."""
 
-    best: dict | None
-    """Assembly-file record of the least-cost feasible design at the first feasible n, or None."""
+    best: SelectedDesign | None
+    """The least-cost feasible design at the first feasible n, or None."""
     n: int | None
     results: tuple[CandidateResult, ...]
 
@@ -224,8 +252,9 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
         rows.extend(r for r, _ in level)
         feasible = [(r, rec) for r, rec in level if r.feasible and rec is not None]
         if feasible:
-            _, best_record = min(feasible, key=lambda x: (x[0].cost, x[0].code))
-            return Selection(best_record, n, tuple(rows))
+            best_row, best_record = min(feasible, key=lambda x: (x[0].cost, x[0].code))
+            src = str(path) if path is not None and best_row.key in done else f"the design of {best_row.code}"
+            return Selection(SelectedDesign.of(best_row, best_record, src), n, tuple(rows))
     return Selection(None, None, tuple(rows))
 
 

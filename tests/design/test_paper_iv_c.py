@@ -133,7 +133,7 @@ def test_feasible_topologies_and_selection_match_the_independent_solve(product, 
     assert len(found) >= 4  # at least the four the issue's own independent check found
     ranked = sorted(found, key=independent.get)
     assert [r.code for r in sel.ranking] == ranked
-    assert sel.best["topology"]["code"] == ranked[0] and sel.runner_up.code == ranked[1]
+    assert sel.best.row.code == ranked[0] and sel.runner_up.code == ranked[1]
     for r in sel.ranking:
         # The product asks for 0.1 mm more clearance than 2r: it may cost a hair more, never less.
         assert r.cost == pytest.approx(independent[r.code], rel=1e-3)

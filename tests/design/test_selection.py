@@ -17,8 +17,9 @@ def test_toy_selection_stops_at_two_modules(tmp_path):
     sel = select(TOY, P, 4, results_path=tmp_path / "r.jsonl")
     assert sel.n == 2
     assert [(r.n, r.feasible) for r in sel.results] == [(1, False), (2, True)]
-    assert abs(sel.best["angles_deg"][0]) + abs(sel.best["angles_deg"][1]) == pytest.approx(22.5, abs=0.1)
-    assert sel.best["feasible"] and sel.best["verification"]["feasible"]
+    alpha = np.degrees(sel.best.assembly.alpha)
+    assert abs(alpha[0]) + abs(alpha[1]) == pytest.approx(22.5, abs=0.1)
+    assert sel.best.row.feasible and sel.best.verification.feasible and sel.best.record["feasible"]
 
 
 def test_resume_does_not_redo_finished_candidates(tmp_path):
@@ -30,7 +31,8 @@ def test_resume_does_not_redo_finished_candidates(tmp_path):
     again = select(TOY, P, 3, min_modules=3, results_path=path, on_result=solved.append)
     assert path.read_text().splitlines() == lines  # nothing re-solved, nothing appended
     assert [r.code for r in again.results] == [r.code for r in first.results]
-    assert again.best["cost"] == first.best["cost"]
+    assert again.best.row.cost == first.best.row.cost  # read back from the results file
+    assert np.array_equal(again.best.assembly.alpha, first.best.assembly.alpha)
     # A sweep killed mid-write leaves a torn last line: it is ignored and that candidate is solved again.
     path.write_text(lines[0] + "\n" + lines[1][: len(lines[1]) // 2])
     assert len(read_results(path)) == 1
