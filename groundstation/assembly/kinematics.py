@@ -137,13 +137,24 @@ def rotor_geometry(positions, rotations, params: ModuleParams, ops: _Ops = NUMPY
     return pos, axis, spin
 
 
+def module_wrench(position, rotation, u, params: ModuleParams, ops: _Ops = NUMPY):
+    """Force (N) and torque (N m) about the origin that one module at ``position`` with ``rotation`` produces from
+    its four rotor inputs ``u`` (rad^2/s^2): the total thrust along its z axis, acting at its centre, plus the
+    rotors' moments about its centre (:func:`module_moment_matrix`).
+
+    The one definition of the wrench: :func:`allocation_matrix` takes its columns from it, and the design NLP
+    calls it with symbolic inputs (one bilinear term per module instead of one per rotor keeps its graph small).
+    """
+    z = rotation[:, 2]
+    thrust = params.c_f * (u[0] + u[1] + u[2] + u[3])
+    return thrust * z, thrust * ops.cross(position, z) + rotation @ (ops.mat(module_moment_matrix(params).tolist()) @ u)
+
+
 def allocation_matrix(positions, rotations, params: ModuleParams, ops: _Ops = NUMPY):
-    """The 6 x 4n matrix ``A`` with ``[F; tau] = A u`` about the centroid (paper §IV-A)."""
-    cols = []
-    for p, z, s in zip(*rotor_geometry(positions, rotations, params, ops), strict=True):
-        force = params.c_f * z
-        torque = params.c_f * ops.cross(p, z) + s * params.c_m * z
-        cols.append((force, torque))
+    """The 6 x 4n matrix ``A`` with ``[F; tau] = A u`` about the origin of ``positions`` (the centroid, paper §IV-A):
+    column ``4 i + q`` is :func:`module_wrench` of module i for a unit input on rotor q."""
+    cols = [module_wrench(p, r, ops.col(np.eye(4)[q].tolist()), params, ops)
+            for p, r in zip(positions, rotations, strict=True) for q in range(4)]
     if ops is NUMPY:
         return np.array([np.concatenate([f, t]) for f, t in cols]).T
     return ca.horzcat(*[ca.vertcat(f, t) for f, t in cols])

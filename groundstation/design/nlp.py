@@ -176,20 +176,17 @@ class LiftedNlp:
         # every other module's inputs and fill the Hessian.
         self.centroid = ca.SX.sym("centroid", 3)
         kinematic.append(self.centroid - sum(self.pos[1:], self.pos[0]) / n)
-        # The wrench per module (its thrust along z_i, its moment matrix), not kin.allocation_matrix's per-rotor
-        # columns: the same numbers, but the per-rotor graph solved the toy case only to Ipopt's acceptable level
-        # and took 1.6x the Ipopt time at n = 30 (tried in issue 14).
+        # kin.module_wrench with symbolic inputs, not kin.allocation_matrix(...) @ u: the same numbers, but the
+        # per-rotor graph solved the toy case only to Ipopt's acceptable level and took 1.6x the Ipopt time at
+        # n = 30 (tried in issue 14).
         offsets = [p - self.centroid for p in self.pos]
-        moments = ca.DM(kin.module_moment_matrix(params))
         wrench_rows = []
         for j in range(k):
             force, torque = 0, 0
             for i in range(n):
-                u_i = params.u_max * self.v[4 * i:4 * i + 4, j]
-                z = self.rot[i][:, 2]
-                thrust = params.c_f * ca.sum1(u_i)
-                force = force + thrust * z
-                torque = torque + thrust * ca.cross(offsets[i], z) + self.rot[i] @ (moments @ u_i)
+                f, t = kin.module_wrench(offsets[i], self.rot[i], params.u_max * self.v[4 * i:4 * i + 4, j], params,
+                                         kin.CASADI)
+                force, torque = force + f, torque + t
             wrench_rows.append((ca.vertcat(force, torque) - wrenches[j]) / row_scale - self.slack[6 * j:6 * j + 6])
         self.g_eq = ca.vertcat(*kinematic, *wrench_rows)
         self.ends = kin.capsule_endpoints(self.pos, self.rot, params, kin.CASADI)
