@@ -7,6 +7,7 @@ import pytest
 from groundstation.assembly.module import ModuleParams
 from groundstation.design.selection import read_results, select
 from groundstation.design.task import load_task
+from groundstation.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 P = ModuleParams()
@@ -67,3 +68,16 @@ def test_results_file_rows_are_json(tmp_path):
     for line in path.read_text().splitlines():
         entry = json.loads(line)
         assert entry["row"]["feasible"] == (entry["record"] is not None)
+
+
+def test_a_hand_edited_record_in_the_results_file_is_named(tmp_path):
+    path = tmp_path / "r.jsonl"
+    select(TOY, P, 2, results_path=path)
+    entries = [json.loads(line) for line in path.read_text().splitlines()]
+    for e in entries:
+        if e["record"] is not None:
+            e["record"]["angles_deg"] = e["record"]["angles_deg"][:1]  # one angle where oE has three
+    path.write_text("".join(json.dumps(e) + "\n" for e in entries))
+    with pytest.raises(ConfigError) as err:
+        select(TOY, P, 2, results_path=path)
+    assert err.value.path == str(path) and err.value.key == "angles_deg"
