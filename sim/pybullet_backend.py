@@ -80,6 +80,7 @@ class PyBulletBackend(BackendBase):
         """Callables ``(t, true_state)`` run after every physics step (e.g. a virtual mocap)."""
         self.link_ok = True
         """Set False to inject a link loss (the flight must stop the motors)."""
+        self._tie: int | None = None
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -113,6 +114,7 @@ class PyBulletBackend(BackendBase):
         pb.changeDynamics(self._body, -1, localInertiaDiagonal=lam.tolist(), linearDamping=0.0,
                           angularDamping=0.0, physicsClientId=c)
         self._t = 0.0
+        self._tie = None
         self._wall0 = time.perf_counter()
         self._history.clear()
         self._record()
@@ -183,6 +185,16 @@ class PyBulletBackend(BackendBase):
                 lag = self._t - (time.perf_counter() - self._wall0)
                 if lag > 0:
                     time.sleep(lag)
+
+    def tie_down(self) -> None:
+        """Fix the body to the world where it is now, as a forgotten tie-down would (a fault drill): physics goes on,
+        the rotors push against the constraint."""
+        if self._tie is None:
+            c = self._client
+            pos, q = pb.getBasePositionAndOrientation(self._body, physicsClientId=c)
+            self._tie = pb.createConstraint(self._body, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0], pos,
+                                            childFrameOrientation=q, physicsClientId=c)
+            pb.changeConstraint(self._tie, maxForce=1e4, physicsClientId=c)
 
     def true_state(self) -> RigidState:
         """The physics state now, without noise or latency."""

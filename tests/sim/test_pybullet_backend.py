@@ -127,3 +127,24 @@ def test_realtime_mode_paces_to_the_wall_clock():
         wall = time.perf_counter() - t0
     assert wall >= 0.45  # never ahead of the wall clock (how far behind, on a loaded machine, is not a test's
     # business)
+
+
+def test_a_tied_down_assembly_stays_where_it_was_tied():
+    """Fault drill: the FULL assembly (tilted modules, principal axes off the body axes) tied in mid-air keeps its
+    pose against full thrust; untied (a fresh connection) the same thrust lifts it."""
+    with PyBulletBackend(FULL, start_position=(0.0, 0.0, 1.0)) as be:
+        be.advance_to(0.2)  # falling
+        be.tie_down()
+        tied = be.true_state()
+        be.arm()
+        be.send(np.full(12, P.u_max))
+        be.advance_to(1.2)
+        s = be.true_state()
+        assert np.linalg.norm(s.position - tied.position) < 1e-3
+        assert np.degrees(np.arccos(np.clip((np.trace(tied.rotation.T @ s.rotation) - 1) / 2, -1, 1))) < 0.1
+        be.close()
+        be.connect()
+        be.arm()
+        be.send(np.full(12, P.u_max))
+        be.advance_to(0.5)
+        assert be.true_state().position[2] > 1.0 + 0.1
