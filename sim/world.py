@@ -67,6 +67,8 @@ class SimulatedWorld:
 
         def advance(t: float) -> None:
             self.backend.link_ok = not self.faults.link_lost
+            if self.faults.tied_down:
+                self.backend.tie_down()
             if on_period is not None:
                 on_period(t)
             self.backend.advance_to(t0 + t)

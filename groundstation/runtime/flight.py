@@ -4,7 +4,8 @@ States and transitions (each logged as an event)::
 
     preflight -> takeoff -> settle -> track -> hold -> landing -> done
     preflight --(a module refuses to arm)--> aborted
-         any airborne state --(operator land, mocap stale or link degraded with policy "land")--> landing
+         any airborne state --(operator land, mocap stale or link degraded with policy "land", the assembly
+                               not following its reference)--> landing
          any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale or link degraded with
                       "stop")--> emergency
 
@@ -121,6 +122,11 @@ class FailsafePolicy:
     five periods are logged as warnings."""
     on_log_failure: Literal["land", "continue"] = "land"
     """The log writer failed (a full disk): land, or fly on unlogged."""
+    max_tracking_error_m: float = 0.5
+    """Airborne, the measured position farther than this from the reference lands the flight: the assembly is not
+    following its commands (held down, too heavy for its modules, an assembly file that is not the one flying).
+    Without it such a flight runs its whole plan with the rotors at their bound. Flights that track have errors of
+    a few cm (README, Fig. 9), m."""
 
 
 @dataclass
@@ -337,6 +343,10 @@ class Flight:
                 return False
             self._set_phase(t, phase)
             sp = self.plan(t)
+            error = float(np.linalg.norm(state.position - sp.position))
+            if error > self.policy.max_tracking_error_m:
+                self._begin_landing(t, state.position, f"not following the reference: {error:.2f} m from it > "
+                                                       f"{self.policy.max_tracking_error_m:g} m")
         out = control(state, sp, self.model, self.gains)
         u = self.alloc(out.wrench, self.model)
         if not np.all(np.isfinite(u)):

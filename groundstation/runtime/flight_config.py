@@ -126,6 +126,8 @@ class FailsafeSection:
     """A gap between control periods beyond this stops the motors (the modules have stopped theirs), s."""
     on_log_failure: Literal["land", "continue"] = FailsafePolicy.on_log_failure
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
+    max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
+    """Airborne, the measured position farther than this from the reference lands the flight, m."""
 
 
 @dataclass(frozen=True, config=_STRICT)

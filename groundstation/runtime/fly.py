@@ -68,8 +68,8 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_paused`` and ``link_lost`` act on the in-process simulator only; with simulated Crazyflie or PX4
-    modules, stop the peer process to lose the link."""
+    ``mocap_paused``, ``link_lost`` and ``tied_down`` act on the in-process simulator only; with simulated
+    Crazyflie or PX4 modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
@@ -77,6 +77,8 @@ class Faults:
     """The pose source returns NaN."""
     link_lost: bool = False
     """The backend reports its link lost."""
+    tied_down: bool = False
+    """The assembly is fixed where it is (a forgotten tie-down, a snagged cable): the rotors spin, it stays."""
 
 
 @dataclass

@@ -202,6 +202,19 @@ def f_mocap_dropout(cli, tmp_path):
     assert res.phase == "done" and res.reason.startswith("mocap stale") and not res.nominal
 
 
+@fault("the assembly is tied to the ground", "landing once 0.5 m from the reference, reason names it, exit 1")
+def f_tied_down(cli, tmp_path):
+    from groundstation.runtime.fly import Faults
+
+    faults = Faults(tied_down=True)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7493"), duration=4.0, log_path=tmp_path / "tied.mcap",
+              faults=faults)
+    assert res.phase == "done" and res.reason.startswith("not following the reference: 0.5"), res.reason
+    assert not res.nominal and res.metrics.simulated_s < res.metrics.planned_s
+    # during the take-off, not after the plan
+    assert any(text.startswith("takeoff -> landing: not following") for _, _, text in res.events), res.events
+
+
 # -- the loop ----------------------------------------------------------------------------------------------------
 def _stalling(seconds: float, at: float = 6.0):
     done = []
