@@ -73,9 +73,12 @@ def test_figure8_over_two_emulated_dongles(tmp_path):
         text = cfg.read_text().replace('"udp://127.0.0.1:19948", "udp://127.0.0.1:19949"',
                                        ", ".join(f'"{u}"' for u in RADIOS))
         # The emulated radio threads share this process with the loop: on a loaded machine their round trip can
-        # pass the 14 ms bound now and then (a correct landing, but not what this test is about: the radio path).
+        # pass the 14 ms bound now and then, and commands waiting behind a late transaction are superseded (the
+        # sender sends only the newest), counted as lost: 10 % once under a CPU hog. Both are correct landings, but not
+        # what this test is about: the radio path.
         text = text.replace("max_link_latency_s = 0.014", "max_link_latency_s = 0.04")
         text = text.replace("link_stop_latency_s = 0.020", "link_stop_latency_s = 0.08")
+        text = text.replace("max_link_loss = 0.1", "max_link_loss = 0.5")
         assert RADIOS[0] in text
         cfg.write_text(text)
         with emulated_crazyradios(19948):
