@@ -1,5 +1,6 @@
 """The Crazyflie backend over cflib's real radio driver, with the USB dongle emulated (sim.crazyradio_emulator):
-sends never wait for the radio, several dongles work in parallel, and a full figure-8 flies over them."""
+sends never wait for the radio, several dongles work in parallel, and a figure-8 flight over them flies or ends
+in the link failsafe."""
 
 import threading
 import time
@@ -66,24 +67,27 @@ def test_one_module_per_dongle_at_the_control_rate():
 
 
 def test_figure8_over_two_emulated_dongles(tmp_path):
-    """The SITL flight through cflib's radio driver (one module per dongle at 250 Hz), parameters included."""
+    """The SITL flight through cflib's radio driver (one module per dongle at 250 Hz), parameters included, with
+    the shipped link bounds: it flies its plan, or the link failsafe lands or stops it naming the link; nothing else.
+
+    The simulated modules (PyBullet) and the emulated dongles are threads of this process, and their round trip
+    sits near the bounds (12 ms median, 14 ms to land, 20 ms to stop): idle, 2 runs of 2 stopped during the
+    take-off at 20-22 ms; with a CPU hog on the other core, 5 of 5. Relaxing the bounds (40 / 80 ms) let the
+    assembly flip under the hog, which is why they are the shipped ones here."""
     peer, th = start_peer(SimulatedCrazyflies, 19948, 7484, params=(("supervisor.tmblChckEn", 0),))
     try:
         cfg = sitl_config(tmp_path, "crazyflie", 19948, "tcp/127.0.0.1:7484")
         text = cfg.read_text().replace('"udp://127.0.0.1:19948", "udp://127.0.0.1:19949"',
                                        ", ".join(f'"{u}"' for u in RADIOS))
-        # The emulated radio threads share this process with the loop: on a loaded machine their round trip can
-        # pass the 14 ms bound now and then, and commands waiting behind a late transaction are superseded (the
-        # sender sends only the newest), counted as lost: 10 % once under a CPU hog. Both are correct landings, but not
-        # what this test is about: the radio path.
-        text = text.replace("max_link_latency_s = 0.014", "max_link_latency_s = 0.04")
-        text = text.replace("link_stop_latency_s = 0.020", "link_stop_latency_s = 0.08")
-        text = text.replace("max_link_loss = 0.1", "max_link_loss = 0.5")
         assert RADIOS[0] in text
         cfg.write_text(text)
-        with emulated_crazyradios(19948):
+        with emulated_crazyradios(19948) as radio:
             res = fly(cfg, duration=3.0, log_path=tmp_path / "radio.mcap")
-        # it tracks (about 1 cm idle; 3.4 cm once with a CPU hog slowing the emulated radios)
-        assert res.phase == "done" and res.nominal and res.metrics.pos_rmse_m < 0.06, (res.phase, res.reason)
+        assert min(radio.transactions.get(d, 0) for d in (0, 1)) > 250  # both dongles carried the flight
+        assert any(text.startswith("preflight -> takeoff") for _, _, text in res.events)
+        if res.nominal:
+            assert res.metrics.pos_rmse_m < 0.03
+        else:
+            assert res.phase in ("done", "emergency") and res.reason.startswith("link degraded"), res.reason
     finally:
         stop_peer(peer, th)
