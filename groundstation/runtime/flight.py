@@ -405,15 +405,19 @@ class Flight:
             r.roll_target.append(roll_target)
             r.motors.append(u)
             r.phase.append(self.phase)
+        # The period's start error and the previous period's compute time (this one's is not over): what the log
+        # keeps, so that a replay's timing figures are the flight's.
+        st = self._stats
+        timing = {"start_error_s": st.start_error[-1], "compute_s": st.compute[-1] if st.compute else 0.0,
+                  "overruns": st.overruns} if st is not None and st.start_error else {}
+        if timing:
+            self.metrics.add_timing(timing["start_error_s"], timing["compute_s"])
         if self.log is not None:
             tw = self._log_time(t)
             self.log.pose("/state/pose", state.position, state.rotation, tw)
             # One record per period (fewer, larger messages keep the feeder's share of the GIL small); the arrays
             # are fresh each period, so no copies are needed, and the writer process converts them (rotation
             # matrices become a quaternion and roll/pitch/yaw there, off the control thread).
-            st = self._stats
-            timing = {"start_error_s": st.start_error[-1], "compute_s": st.compute[-1] if st.compute else 0.0,
-                      "overruns": st.overruns} if st is not None and st.start_error else {}
             record = {"t": t, "phase": self.phase,
                       "state": {"position": state.position, "velocity": state.velocity, "rotation": state.rotation,
                                 "omega": state.omega},
@@ -465,7 +469,6 @@ class Flight:
             """Idle time of a period: young-generation GC once a second, then the background threads' turn."""
             t0 = time.perf_counter()
             pending[0] += 1
-            self.metrics.add_timing(self._stats.start_error[-1], self._stats.compute[-1])
             if pending[0] >= every and collect_young(time_left):
                 pending[0] = 0
             if activity is not None:

@@ -53,7 +53,7 @@ class FlightFigures:
     """Median |actual - scheduled| start of a period, ms."""
     loop_period_error_p99_ms: float
     compute_p99_ms: float
-    """99th percentile of a period's compute time, ms."""
+    """99th percentile of the compute time of the period before each commanded one, ms (the log's figure)."""
     periods: int
     simulated_s: float
     """Flight time covered by the periods (their count times the period), s."""
