@@ -153,6 +153,10 @@ def sitl_config(tmp_path, kind: str, port: int, mocap: str) -> Path:
     text = text.replace('firmware_params = "../../', f'firmware_params = "{ROOT}/')
     text = text.replace(str(shipped_port), str(port)).replace(str(shipped_port + 1), str(port + 1))
     text = text.replace("tcp/127.0.0.1:7448", mocap)
+    # The shipped 0.1 s link timeout also stops a flight whose simulated modules were starved that long on a loaded
+    # machine (seen under a CPU hog: "backend link lost" at 0.25 s and 2.3 s, before anything was injected): a
+    # correct stop, but not what these tests are about. 0.5 s still catches a killed peer within the flight.
+    text = text.replace("link_timeout_s = 0.1", "link_timeout_s = 0.5")
     cfg = tmp_path / f"{kind}.toml"
     cfg.write_text(text)
     return cfg
@@ -169,10 +173,6 @@ def sim_peer(request, tmp_path):
     kind = request.param
     _, protocol, _, test_port = SITL[kind]
     cfg = sitl_config(tmp_path, kind, test_port, "tcp/127.0.0.1:7476")
-    # The shipped 0.1 s link timeout also stops a flight whose peer process was starved that long on a loaded
-    # machine (seen under a CPU hog: "backend link lost" at 2.3 s, before anything was injected): a correct stop,
-    # but not what these tests are about. 0.5 s still catches a killed peer within the flight.
-    cfg.write_text(cfg.read_text().replace("link_timeout_s = 0.1", "link_timeout_s = 0.5"))
     params = load_flight_config(cfg)[0].backend.firmware_params
     peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
                              str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", protocol,
