@@ -352,7 +352,7 @@ def _best(outcomes: list[_Outcome], rtol: float) -> _Outcome:
     """The least-cost feasible outcome; of starts at the same optimum (within ``rtol``), one Ipopt fully converged
     (their costs differ by rounding, 1e-10 relative in the toy case, so which of them is least is an accident of
     summation order, and an "acceptable level" stop is the weaker certificate). Without a feasible outcome: the
-    least wrench residual."""
+    least cost, then the least wrench residual (as before)."""
     feasible = [o for o in outcomes if o.verification.feasible]
     if not feasible:
         return min(outcomes, key=lambda o: (o.cost, o.verification.max_wrench_residual))
