@@ -1,17 +1,28 @@
 """One simulated Crazyflie running the motor app: the firmware rules the ground station meets on real modules.
 
-Modelled on crazyflie-firmware 2026.08 with ``firmware/crazyflie_app`` flashed:
+Modelled on crazyflie-firmware 2026.08 with ``firmware/crazyflie_app`` flashed, and checked against the real
+firmware run natively (``firmware/crazyflie_sitl``, ``tests/firmware_sitl``):
 
 * Supervisor (``supervisor.c``, ``supervisor_state_machine.c``), the states that matter to the ground station:
-  pre-flight checks passed -> (arming request, or at once on auto-arming platforms) ready to fly -> flying
-  (a motor over idle) -> landed (no thrust for 2 s) -> back to pre-flight checks passed on disarm or after the 3 s
-  landing timeout. Ready to fly without flying for 30 s disarms (pre-flight timeout). An emergency stop (supervisor
-  port, or the legacy localization packet), or 2 s without a setpoint while flying (commander watchdog), locks
-  the module until it is rebooted. Bolt and the 2.1 Brushless need the arming request
-  (``CONFIG_MOTORS_REQUIRE_ARMING``); the Crazyflie 2.x arms itself.
+  pre-flight checks not passed (tumbled) -> passed -> (arming request, or at once on auto-arming platforms)
+  arming -> ready to fly -> flying (a motor over idle in the last 2 s) -> landed (no thrust for 2 s) -> back to not
+  passed on disarm or after the 3 s landing timeout. A 2.1 Brushless build (bidirectional DSHOT) stays in arming
+  until every motor reports 1000-3500 RPM for 200 ms and disarms after a 2 s spin-up timeout; other builds pass
+  arming at once. Ready to fly without flying for 30 s disarms (pre-flight timeout). Tumbled
+  (``supervisor.tmblChckEn`` on, the module's specific force below 0.5 g along its z axis for 1 s, or below -0.2 g
+  for 0.1 s) blocks arming and disarms; tumbled while flying is a crash (motors stopped until a reboot). Flying
+  without a setpoint for 0.5 s levels out (WarningLevelOut, left only by fresh setpoints: it never lands by
+  itself); an emergency stop (supervisor port, or the legacy localization packet), or 2 s without a setpoint while
+  flying (commander watchdog), locks the module until it is rebooted. Bolt and the 2.1 Brushless need the arming
+  request (``CONFIG_MOTORS_REQUIRE_ARMING``); the Crazyflie 2.x arms itself, also right after a disarm: with its
+  flying hysteresis still on it is flying again at once and, left without commands, locks 2 s later (found on the
+  real firmware; the ground station streams zeros until the hysteresis has run out).
 * The motor app (``motor_protocol.c``), mirrored line for line by :class:`MotorApp` and checked against the C
-  code in the tests: a 1-deep latest-wins mailbox, forces only while the newest command is armed, fresh
-  (< 100 ms) and the supervisor is not locked; its state streamed unprompted every 10 ms.
+  code in the tests: a 1-deep latest-wins mailbox, forces only while the supervisor can fly and the newest
+  command is armed and fresh (< 100 ms); one state per batch of received commands, never unprompted, reporting
+  the motor ratios.
+* The power distribution (battery compensation and its dead zone, the cap shared by four rotors, the idle floor)
+  is the platform's :class:`~groundstation.assembly.motor_map.MotorCommandMap`.
 * The connection-setup and parameter services (:mod:`sim.crtp_services`), the platform version (CRTP protocol
   12), and the power switch cflib's ``PowerSwitch`` sends over a UDP link (a reboot keeps only stored
   parameters).
@@ -27,20 +38,27 @@ from typing import Literal
 
 import numpy as np
 
+from groundstation.assembly.motor_map import REQUIRES_ARMING, MotorCommandMap
 from groundstation.backends import crtp_wire as wire
 from sim.crtp_services import FirmwareParam, FirmwareServices
 
 Platform = Literal["cf2", "cf21bl", "bolt"]
-REQUIRES_ARMING = {"cf2": False, "cf21bl": True, "bolt": True}
-"""``CONFIG_MOTORS_REQUIRE_ARMING`` in each platform's defconfig (2026.08)."""
+RPM_CHECK = {"cf2": False, "cf21bl": True, "bolt": False}
+"""Bidirectional DSHOT (``CONFIG_MOTORS_ESC_PROTOCOL_DSHOT_BIDIRECTIONAL``, default with DSHOT): the arming RPM
+check."""
+ARMING_RPM = (1000.0, 3500.0)
+"""``CONFIG_MOTORS_ARMING_RPM_MIN``, ``_MAX``."""
+ARMING_RPM_DURATION_S = 0.2
+ARMING_SPINUP_TIMEOUT_S = 2.0
+TUMBLE_TILT_ACC_Z, TUMBLE_TILT_S = 0.5, 1.0
+TUMBLE_UPSIDE_DOWN_ACC_Z, TUMBLE_UPSIDE_DOWN_S = -0.2, 0.1
 COMMAND_TIMEOUT_TICKS = 100
 """The motor app's staleness timeout (``MOTOR_APP_COMMAND_TIMEOUT_MS``), in ticks of the 1 kHz kernel."""
-STATE_PERIOD_S = 0.01
-"""The motor app's state report period, s."""
 PREFLIGHT_TIMEOUT_S = 30.0
 LANDING_TIMEOUT_S = 3.0
 IS_FLYING_HYSTERESIS_S = 2.0
 COMMANDER_WDT_SHUTDOWN_S = 2.0
+COMMANDER_WDT_WARNING_S = 0.5
 POWER_SWITCH = 0xFE
 """Second byte of cflib's ``PowerSwitch`` packets over a non-radio link: ``0xFF 0xFE <cmd> [arg]``."""
 POWER_SYSOFF, POWER_SYSON, POWER_RESET = 0x02, 0x03, 0xF0
@@ -76,9 +94,11 @@ class MotorApp:
     def drop(self) -> None:
         self.dropped = (self.dropped + 1) & 0xFFFF
 
-    def forces(self, tick: int, locked: bool, timeout: int = COMMAND_TIMEOUT_TICKS) -> np.ndarray:
-        """Normalized forces of the four rotors (zero unless armed, fresh and not locked)."""
-        if locked or self.latest is None or self._age(tick) >= timeout or not self.latest.armed:
+    def forces(self, tick: int, locked: bool, can_fly: bool = True,
+               timeout: int = COMMAND_TIMEOUT_TICKS) -> np.ndarray:
+        """Normalized forces of the four rotors (zero unless not locked, able to fly, armed and fresh)."""
+        if (locked or not can_fly or self.latest is None or self._age(tick) >= timeout
+                or not self.latest.armed):
             return np.zeros(4)
         return wire.from_counts(self.latest.counts)
 
@@ -91,13 +111,20 @@ class Supervisor:
 
     def __init__(self, platform: Platform, now: float) -> None:
         self.auto_arm = not REQUIRES_ARMING[platform]
-        self.state = "passed"
+        self.rpm_check = RPM_CHECK[platform]
+        self.state = "not_passed"
         self.armed = False
         self.estop = False
+        self.tumble_check = True
+        """``supervisor.tmblChckEn``."""
+        self.tumbled = False
+        self.last_event = ""
+        """Why the newest transition out of a flight state happened (disarm, spin-up timeout, tumbled, ...)."""
         self._since = now
         """Time the current state was entered, s."""
         self._last_thrust = -np.inf
-        self._step(now, False, 0.0)
+        self._tilt_since: float | None = None
+        self._rpm_ok_since: float | None = None
 
     @property
     def locked(self) -> bool:
@@ -105,7 +132,18 @@ class Supervisor:
 
     @property
     def motors_allowed(self) -> bool:
-        return self.state in ("ready", "flying", "landed")
+        """``supervisorAreMotorsAllowedToRun``: the idle floor applies, forces reach the motors."""
+        return self.state in ("arming", "ready", "flying", "level_out", "landed")
+
+    @property
+    def can_fly(self) -> bool:
+        """``supervisorCanFly``."""
+        return self.state in ("ready", "flying", "level_out", "landed")
+
+    @property
+    def flying(self) -> bool:
+        """``supervisorIsFlying``: Flying or WarningLevelOut."""
+        return self.state in ("flying", "level_out")
 
     def request_arming(self, do_arm: bool) -> tuple[bool, bool]:
         """``supervisorRequestArming``: (granted, armed)."""
@@ -116,41 +154,87 @@ class Supervisor:
         self.armed = do_arm
         return True, self.armed
 
-    def _enter(self, state: str, now: float) -> None:
+    def _enter(self, state: str, now: float, why: str = "") -> None:
         self.state, self._since = state, now
-        if state in ("passed", "locked"):
+        self.last_event = why or self.last_event
+        if state in ("not_passed", "locked", "crashed"):
             self.armed = False
+        self._rpm_ok_since = None
 
-    def _step(self, now: float, over_idle: bool, setpoint_age: float) -> None:
+    def _tumble(self, now: float, acc_z_g: float) -> bool:
+        if acc_z_g >= TUMBLE_TILT_ACC_Z:
+            self._tilt_since = None
+            return False
+        if self._tilt_since is None:
+            self._tilt_since = now
+        held = now - self._tilt_since
+        return held > TUMBLE_TILT_S or (acc_z_g < TUMBLE_UPSIDE_DOWN_ACC_Z and held > TUMBLE_UPSIDE_DOWN_S)
+
+    def _rpm_valid(self, now: float, rpm) -> bool:
+        if not self.rpm_check:
+            return True
+        lo, hi = ARMING_RPM
+        if rpm is None or np.any(np.asarray(rpm) < lo) or np.any(np.asarray(rpm) > hi):
+            self._rpm_ok_since = None
+            return False
+        if self._rpm_ok_since is None:
+            self._rpm_ok_since = now
+        return now - self._rpm_ok_since >= ARMING_RPM_DURATION_S
+
+    def step(self, now: float, over_idle: bool, setpoint_age: float, acc_z_g: float = 1.0, rpm=None) -> None:
+        """One supervisor update: ``over_idle`` a motor above idle, ``acc_z_g`` the specific force along the
+        module's z axis (g), ``rpm`` the four motors' speeds (bidirectional DSHOT)."""
         if over_idle:
             self._last_thrust = now
         flying = now - self._last_thrust < IS_FLYING_HYSTERESIS_S
+        self.tumbled = self.tumble_check and self._tumble(now, acc_z_g)
         s = self.state
-        if s != "locked" and (self.estop or (s == "flying" and setpoint_age > COMMANDER_WDT_SHUTDOWN_S)):
-            self._enter("locked", now)
+        if s in ("locked", "crashed"):
+            return
+        if self.estop or (self.flying and setpoint_age > COMMANDER_WDT_SHUTDOWN_S):
+            self._enter("locked", now, "emergency stop" if self.estop else "commander watchdog")
+        elif s == "level_out":  # no way out but fresh setpoints: it never lands by itself
+            if self.tumbled:
+                self._enter("locked", now, "tumbled in flight")
+            elif setpoint_age <= COMMANDER_WDT_WARNING_S:
+                self._enter("flying", now)
+        elif s == "not_passed":
+            if not self.tumbled:
+                self._enter("passed", now)
         elif s == "passed":
             if self.auto_arm:
                 self.armed = True
-            if self.armed:
+            if self.tumbled:
+                self._enter("not_passed", now, "tumbled")
+            elif self.armed:
+                self._enter("arming", now)
+        elif s == "arming":
+            if self.tumbled or not self.armed:
+                self._enter("not_passed", now, "tumbled" if self.tumbled else "disarmed")
+            elif now - self._since > ARMING_SPINUP_TIMEOUT_S:
+                self._enter("not_passed", now, "motors did not reach the arming RPM within 2 s")
+            elif self._rpm_valid(now, rpm):
                 self._enter("ready", now)
         elif s == "ready":
-            if not self.armed or now - self._since > PREFLIGHT_TIMEOUT_S:
-                self._enter("passed", now)
+            if self.tumbled or not self.armed or now - self._since > PREFLIGHT_TIMEOUT_S:
+                why = "tumbled" if self.tumbled else "disarmed" if not self.armed else "pre-flight timeout"
+                self._enter("not_passed", now, why)
             elif flying:
                 self._enter("flying", now)
         elif s == "flying":
-            if not self.armed:
-                self._enter("passed", now)
+            if self.tumbled:
+                self._enter("crashed", now, "tumbled in flight")
+            elif not self.armed:
+                self._enter("not_passed", now, "disarmed")
+            elif setpoint_age > COMMANDER_WDT_WARNING_S:
+                self._enter("level_out", now, "no setpoint for 0.5 s (commander watchdog)")
             elif not flying:
                 self._enter("landed", now)
         elif s == "landed":
             if flying:
                 self._enter("flying", now)
             elif not self.armed or now - self._since > LANDING_TIMEOUT_S:
-                self._enter("passed", now)
-
-    def step(self, now: float, over_idle: bool, setpoint_age: float) -> None:
-        self._step(now, over_idle, setpoint_age)
+                self._enter("not_passed", now, "disarmed" if not self.armed else "landing timeout")
 
 
 @dataclass(frozen=True)
@@ -179,11 +263,17 @@ def module_params(build: FirmwareBuild) -> list[FirmwareParam]:
 
 
 class SimulatedCrazyflie:
-    """The firmware of one module: :meth:`handle` takes a CRTP packet and returns the replies; :meth:`forces`
-    is what reaches the motors; :meth:`state_due` says when the app's next state report is due."""
+    """The firmware of one module: :meth:`handle` takes a CRTP packet and returns the replies; :meth:`ratios` is
+    what reaches the motors; :meth:`step` advances the supervisor."""
 
-    def __init__(self, build: FirmwareBuild, now: float, preset: tuple[tuple[str, float], ...] = ()) -> None:
+    def __init__(self, build: FirmwareBuild, now: float, preset: tuple[tuple[str, float], ...] = (),
+                 motor_map: MotorCommandMap | None = None, battery_v: float = 4.0) -> None:
         self.build = build
+        self.motor_map = motor_map or _stock_map(build.platform)
+        if self.motor_map.platform != build.platform:
+            raise ValueError(f"a {build.platform} build with the thrust map of a {self.motor_map.platform}")
+        self.battery_v = battery_v
+        """Battery under load, V (the power distribution compensates it)."""
         self.services = FirmwareServices(module_params(build))
         for name, value in preset:  # configured before this run (an earlier params --apply stored them)
             self.services.set(name, value)
@@ -199,7 +289,7 @@ class SimulatedCrazyflie:
         self.supervisor = Supervisor(self.build.platform, now)
         self.app = MotorApp()
         self.last_setpoint = -np.inf
-        self.last_state = -np.inf
+        self._answer_due = False
 
     # -- packets ----------------------------------------------------------------------------------------------
     def handle(self, data: bytes, now: float) -> list[bytes]:
@@ -208,8 +298,7 @@ class SimulatedCrazyflie:
             return []
         head, body = data[0], data[1:]
         if head == wire.NULL_HEADER:
-            self._power(body, now)
-            return []
+            return self._power(body, now)
         if not self.powered:
             return []
         if wire.same_port(head, wire.APP_HEADER):
@@ -227,6 +316,7 @@ class SimulatedCrazyflie:
         return self.services.handle(head, body) or []
 
     def _app_packet(self, body: bytes, now: float) -> None:
+        self._answer_due = True  # the app answers each batch of received packets with one state
         try:
             cmd = wire.MotorCommand.unpack(body)
         except ValueError:
@@ -243,42 +333,63 @@ class SimulatedCrazyflie:
             return [bytes([head, wire.CMD_RESPONSE | wire.CMD_ARM_SYSTEM, int(granted), int(armed)])]
         return []
 
-    def _power(self, body: bytes, now: float) -> None:
-        """cflib's PowerSwitch over a UDP link; anything else on the null header is ignored, as on hardware."""
+    def _power(self, body: bytes, now: float) -> list[bytes]:
+        """cflib's PowerSwitch over a UDP link, answered with a null packet (cflib waits for any packet back, as
+        the radio's acknowledgement; the app no longer streams one unprompted); anything else on the null header
+        is ignored, as on hardware."""
         if body[:1] != bytes([POWER_SWITCH]) or len(body) < 2:
-            return
+            return []
         if body[1] == POWER_SYSOFF:
             self.powered = False
         elif body[1] in (POWER_SYSON, POWER_RESET):
             self.powered = True
             self._boot(now)
+        return [bytes([wire.NULL_HEADER])]
 
     # -- time ---------------------------------------------------------------------------------------------------
-    def forces(self, now: float) -> np.ndarray:
-        """Normalized forces reaching the motors now (the app's gate, then the supervisor's)."""
-        if not self.powered or not self.build.motor_app or not self.supervisor.motors_allowed:
+    def _forces(self, now: float) -> np.ndarray:
+        sup = self.supervisor
+        return self.app.forces(ticks(now), sup.locked, sup.can_fly)
+
+    def ratios(self, now: float) -> np.ndarray:
+        """Motor ratios (0..1) reaching the four motors now: the app's gate, then the power distribution."""
+        if not self.powered or not self.build.motor_app:
             return np.zeros(4)
-        return self.app.forces(ticks(now), self.supervisor.locked)
+        forces = self._forces(now)[None, :]
+        return self.motor_map.motor_ratios(forces, [self.battery_v], armed=self.supervisor.motors_allowed)[0]
 
-    def step(self, now: float) -> None:
-        """Advance the supervisor (once per physics step)."""
+    def step(self, now: float, acc_g=(0.0, 0.0, 1.0), rpm=None) -> None:
+        """Advance the supervisor (once per physics step) with the module's specific force (g, module frame) and
+        its motors' speeds (RPM)."""
         if self.powered:
-            over_idle = bool(np.any(self.app.forces(ticks(now), self.supervisor.locked) > 0))
-            self.supervisor.step(now, over_idle, now - self.last_setpoint)
+            sup = self.supervisor
+            sup.tumble_check = bool(self.services.value("supervisor.tmblChckEn"))
+            over_idle = bool(np.any(self.ratios(now) > self.motor_map.idle + 1e-9))
+            sup.step(now, over_idle, now - self.last_setpoint, float(acc_g[2]), rpm)
 
-    def state_due(self, now: float) -> bool:
-        return self.powered and self.build.motor_app and now - self.last_state >= STATE_PERIOD_S
+    def state_due(self) -> bool:
+        """A batch of app packets arrived since the last state: the app answers it."""
+        return self.powered and self.build.motor_app and self._answer_due
 
-    def state_packet(self, now: float, battery_v: float, gyro: np.ndarray) -> bytes:
-        """The app's state report (whole CRTP packet): the forces applied now, the battery, ``gyro`` in rad/s."""
-        self.last_state = now
-        applied = self.forces(now)
+    def state_packet(self, now: float, gyro: np.ndarray) -> bytes:
+        """The app's state report (whole CRTP packet): the motor ratios now, the battery, ``gyro`` in rad/s."""
+        self._answer_due = False
         latest = self.app.latest
+        sup = self.supervisor
         flags = ((wire.STATE_ARMED if latest is not None and latest.armed else 0)
-                 | (wire.STATE_LOCKED if self.supervisor.locked else 0)
-                 | (wire.STATE_SUPERVISOR_ARMED if self.supervisor.armed else 0)
-                 | (wire.STATE_FRESH if self.app.fresh(ticks(now)) else 0))
-        st = wire.ModuleState(flags, latest.sequence if latest is not None else 0, wire.to_counts(applied),
-                              round(battery_v * 1e3), tuple(float(g) for g in gyro), self.app.received,
+                 | (wire.STATE_LOCKED if sup.locked else 0)
+                 | (wire.STATE_SUPERVISOR_ARMED if sup.armed else 0)
+                 | (wire.STATE_FRESH if self.app.fresh(ticks(now)) else 0)
+                 | (wire.STATE_CAN_FLY if sup.can_fly else 0)
+                 | (wire.STATE_FLYING if sup.flying else 0))
+        st = wire.ModuleState(flags, latest.sequence if latest is not None else 0, wire.to_counts(self.ratios(now)),
+                              round(self.battery_v * 1e3), tuple(float(g) for g in gyro), self.app.received,
                               self.app.dropped)
         return bytes([wire.APP_HEADER]) + st.pack()
+
+
+def _stock_map(platform: Platform) -> MotorCommandMap:
+    """The firmware's own map of a platform at its defaults (the bolt fit is the paper module's)."""
+    if platform == "bolt":
+        return MotorCommandMap(platform="bolt", thrust_poly_n=(0.0, 0.0, 1.548), reference_battery_v=3.5)
+    return MotorCommandMap(platform=platform, thrust_max_n={"cf2": 0.12, "cf21bl": 0.2}[platform])

@@ -2,7 +2,7 @@
 
 One UDP socket per module speaks CRTP exactly as cflib's UDP driver expects (one packet per datagram). Behind it
 each module runs a model of crazyflie-firmware 2026.08 with the motor app flashed (:mod:`sim.crazyflie_firmware`:
-supervisor arming, emergency stop and watchdogs, the app's mailbox and gate, its state stream every 10 ms, the
+supervisor arming, emergency stop and watchdogs, the app's mailbox and gate, one state per batch of commands, the
 parameter services with persistent storage, reboots through cflib's ``PowerSwitch``). The forces the firmware
 outputs become rotor thrust through the platform's map (the assembly's ``module_params.motor_command``, with the
 module's battery voltage), and the pose goes out over Zenoh (:class:`sim.module_peer.ModulePeer`). The ground
@@ -10,8 +10,10 @@ station flies it with the Crazyflie backend, in another process, exactly as it w
 
     groundstation sim-peer configs/assemblies/toy_v2.json --port 19850 --mocap tcp/127.0.0.1:7448
 
-Modules listen on ``port, port + 1, ...`` in assembly order. The state stream goes to the address the ground
-station last sent from (a radio link carries it back in the acknowledgements of the ground station's packets).
+Modules listen on ``port, port + 1, ...`` in assembly order. Each batch of app packets is answered with one state,
+sent to the address the ground station last sent from (a radio link carries it back in the acknowledgements of the
+ground station's packets). Each module's supervisor sees the module's own accelerometer (the specific force in its
+frame: a module mounted beyond 60 degrees of tilt trips the tumble check, as on hardware) and motor speeds.
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ class SimulatedCrazyflies(ModulePeer):
         build = FirmwareBuild(platform=c.platform, motor_app=c.motor_app)
         self._links: list[_Link] = []
         for i in range(self.assembly.n):
-            firmware = SimulatedCrazyflie(build, time.monotonic(), c.params)
+            firmware = SimulatedCrazyflie(build, time.monotonic(), c.params, self.assembly.params.motor_command,
+                                          c.battery_v)
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self._links.append(_Link(s, firmware))
             s.bind((c.host, c.port + i))
@@ -57,10 +60,14 @@ class SimulatedCrazyflies(ModulePeer):
 
     def armed(self, i: int) -> bool:
         fw = self.firmware(i)
-        return fw.supervisor.motors_allowed and fw.app.latest is not None and fw.app.latest.armed
+        return fw.supervisor.can_fly and fw.app.latest is not None and fw.app.latest.armed
 
     def locked(self, i: int) -> bool:
         return self.firmware(i).supervisor.locked
+
+    def ratios(self, i: int) -> np.ndarray:
+        """Module i's motor ratios now (0..1)."""
+        return self.firmware(i).ratios(time.monotonic())
 
     def _close_links(self) -> None:
         for link in getattr(self, "_links", []):
@@ -68,7 +75,7 @@ class SimulatedCrazyflies(ModulePeer):
         self._links = []
 
     def _serve(self, now: float) -> None:
-        c = self.config
+        specific_force = self.specific_force()
         for i, link in enumerate(self._links):
             while True:
                 try:
@@ -80,14 +87,14 @@ class SimulatedCrazyflies(ModulePeer):
                 for reply in link.firmware.handle(data, now):
                     with contextlib.suppress(OSError):
                         link.sock.sendto(reply, addr)
-            link.firmware.step(now)
-            if link.peer is not None and link.firmware.state_due(now):
-                packet = link.firmware.state_packet(now, c.battery_v, self.module_gyro(i))
+            link.firmware.step(now, self.module_frame(i, specific_force), self.module_rpm(i))
+            if link.peer is not None and link.firmware.state_due():
+                packet = link.firmware.state_packet(now, self.module_gyro(i))
                 with contextlib.suppress(OSError):  # the ground station went away: motors stop on the timeout
                     link.sock.sendto(packet, link.peer)
 
     def _rotor_inputs(self, now: float) -> np.ndarray:
         params = self.assembly.params
-        forces = np.array([link.firmware.forces(now) for link in self._links])
-        thrust = params.motor_command.thrust(forces, np.full(len(self._links), self.config.battery_v))
+        ratios = np.array([link.firmware.ratios(now) for link in self._links])
+        thrust = params.motor_command.thrust(ratios, np.full(len(self._links), self.config.battery_v))
         return (thrust / params.c_f).reshape(-1)

@@ -11,9 +11,10 @@ crazyflie-firmware's CRTP services as cflib 0.1.3x expects them:
   the type byte carries 0x40 for read-only and 0x10 for "extended", i.e. persistent), read on channel 1
   (``[id]`` -> ``[id, status 0, value]``), write on channel 2 (``[id, value]`` -> the same packet back once
   applied; a read-only parameter is silently not written, as the firmware does), and on the misc channel 3 the
-  extended type (``[7, id]`` -> ``[7, id, 0, 1 = persistent]``) and the persistent store (``[3, id]`` ->
-  ``[3, id, 0]``). Ids are little-endian uint16. A reboot (:meth:`FirmwareServices.reboot`) restores the
-  defaults, then the stored values.
+  extended type (``[7, id]`` -> ``[7, id, 0, 1 = persistent]``), the persistent store (``[3, id]`` ->
+  ``[3, id, 0]``) and its state (``[4, id]`` -> ``[4, id, stored 1 / not 0, default value, stored value if
+  stored]``, as ``paramPersistentGetState``). Ids are little-endian uint16. A reboot
+  (:meth:`FirmwareServices.reboot`) restores the defaults, then the stored values.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ CMD_TOC_ITEM_V2, CMD_TOC_INFO_V2 = 2, 3
 CMD_MEM_INFO_NBR = 1
 CMD_RESET_LOGGING = 5
 PARAM_MISC_CHANNEL = 3
-MISC_PERSISTENT_STORE, MISC_GET_EXTENDED_TYPE_V2 = 3, 7
+MISC_PERSISTENT_STORE, MISC_PERSISTENT_GET_STATE, MISC_GET_EXTENDED_TYPE_V2 = 3, 4, 7
 TOC_READ_ONLY, TOC_EXTENDED = 0x40, 0x10
 EXTENDED_PERSISTENT = 1
 ENOENT = 2
@@ -147,4 +148,11 @@ class FirmwareServices:
                 return [bytes([head]) + body[:3] + bytes([ENOENT])]
             self.stored[f"{p.group}.{p.name}"] = p.value
             return [bytes([head]) + body[:3] + bytes([0])]
+        if cmd == MISC_PERSISTENT_GET_STATE:
+            if p is None or not p.persistent:
+                return [bytes([head]) + body[:3] + bytes([ENOENT])]
+            fmt = TYPES[p.ctype][1]
+            stored = self.stored.get(f"{p.group}.{p.name}")
+            state = bytes([1 if stored is not None else 0]) + struct.pack(fmt, p.default)
+            return [bytes([head]) + body[:3] + state + (struct.pack(fmt, stored) if stored is not None else b"")]
         return []

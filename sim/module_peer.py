@@ -16,6 +16,7 @@ from typing import Literal
 import numpy as np
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.assembly.module import GRAVITY
 from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
 from groundstation.mocap.zenoh_link import PosePublisher, open_session
 from sim.pybullet_backend import PyBulletBackend, SimConfig
@@ -41,7 +42,7 @@ class PeerConfig:
     motor_time_constant: float = SIM_MOTOR_TIME_CONSTANT
     """s"""
     state_rate_hz: float = 100.0
-    """PX4 modules: state streams, Hz (the Crazyflie motor app reports every 10 ms)."""
+    """PX4 modules: state streams, Hz (the Crazyflie motor app answers each batch of commands instead)."""
     battery_v: float = 4.0
     """V"""
     params: tuple[tuple[str, float], ...] = ()
@@ -65,6 +66,8 @@ class ModulePeer:
         self._vmocap = None
         sim_config = SimConfig(physics_hz=c.physics_hz, motor_time_constant=c.motor_time_constant)
         self.sim = PyBulletBackend(assembly, sim_config, observers=[self._observe])
+        self._last_velocity: tuple[float, np.ndarray] | None = None
+        """(time s, body velocity m/s) at the previous physics step, for the accelerometers."""
         self.stop_event = threading.Event()
         self.packets = 0
         """Packets received from the ground station."""
@@ -104,6 +107,9 @@ class ModulePeer:
         except OSError as exc:
             self.close()
             raise OSError(f"cannot listen on udp {c.host}:{c.port}..{c.port + self.assembly.n - 1}: {exc}") from None
+        except BaseException:
+            self.close()  # nothing half-open: the firmware processes already started stop with it
+            raise
         self._session = open_session(listen=[c.mocap_endpoint])
         self._publisher = PosePublisher(self._session, c.mocap_key)
         self._vmocap = VirtualMocap(self._publisher, c.mocap_rate_hz, c.position_noise, c.attitude_noise,
@@ -140,7 +146,26 @@ class ModulePeer:
 
     def module_gyro(self, i: int) -> np.ndarray:
         """Module i's gyro: the body rate in the module's frame, rad/s."""
-        return self.assembly.module_rotations[i].T @ self.sim.telemetry().gyro
+        return self.module_frame(i, self.sim.telemetry().gyro)
+
+    def specific_force(self) -> np.ndarray:
+        """The body's specific force (acceleration less gravity) in the body frame, in g, from its velocity over
+        the last physics step (at rest, level: 0 0 1); call once per step."""
+        state = self.sim.true_state()
+        now = self.sim.time
+        accel = np.zeros(3)
+        if self._last_velocity is not None and now > self._last_velocity[0]:
+            accel = (state.velocity - self._last_velocity[1]) / (now - self._last_velocity[0])
+        self._last_velocity = (now, state.velocity.copy())
+        return state.rotation.T @ (accel + np.array([0.0, 0.0, GRAVITY])) / GRAVITY
+
+    def module_frame(self, i: int, body_vector: np.ndarray) -> np.ndarray:
+        """A body-frame vector in module i's frame (what its IMU measures)."""
+        return self.assembly.module_rotations[i].T @ body_vector
+
+    def module_rpm(self, i: int) -> np.ndarray:
+        """Module i's motor speeds as bidirectional DSHOT reports them, RPM."""
+        return np.sqrt(np.maximum(self.module_motors(i), 0.0)) * 60.0 / (2.0 * np.pi)
 
     def module_motors(self, i: int) -> np.ndarray:
         """Module i's rotor inputs as the physics applies them (after the motor lag), rad^2/s^2."""

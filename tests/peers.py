@@ -17,8 +17,9 @@ ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
 U_MAX = ASM.params.u_max
 
 
-def start_peer(peer_class: type[ModulePeer], port: int, mocap_port: int, **kw) -> tuple[ModulePeer, threading.Thread]:
-    peer = peer_class(ASM, PeerConfig(port=port, mocap_endpoint=f"tcp/127.0.0.1:{mocap_port}", **kw))
+def start_peer(peer_class: type[ModulePeer], port: int, mocap_port: int, assembly=ASM,
+               **kw) -> tuple[ModulePeer, threading.Thread]:
+    peer = peer_class(assembly, PeerConfig(port=port, mocap_endpoint=f"tcp/127.0.0.1:{mocap_port}", **kw))
     peer.open()
     th = threading.Thread(target=peer.run, daemon=True)
     th.start()
@@ -40,9 +41,10 @@ def hold(be, u: np.ndarray, seconds: float) -> None:
         time.sleep(0.005)
 
 
-def check_commands_and_state(be, peer: ModulePeer) -> None:
+def check_commands_and_state(be, peer: ModulePeer, idle_u: float = 0.0) -> None:
     """A connected hardware backend against its simulated modules: nothing spins until armed, commands arrive
-    bounded, the applied motors, battery and body rate come back, and the emergency stop zeroes at once."""
+    bounded, the applied motors (never below ``idle_u``, the armed modules' idle floor, rad^2/s^2), battery and body
+    rate come back, and the emergency stop zeroes at once."""
     assert be.preflight().ok
     hold(be, np.full(8, 0.5 * U_MAX), 0.3)
     assert be.telemetry().motors.max() == 0.0  # not armed: the modules ignore it
@@ -51,10 +53,10 @@ def check_commands_and_state(be, peer: ModulePeer) -> None:
     hold(be, cmd, 0.4)
     tel = be.telemetry()
     assert tel.link_ok and tel.battery_v.tolist() == pytest.approx([4.0, 4.0])
-    np.testing.assert_allclose(tel.motors, [0, U_MAX, 0, 0, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX],
-                               atol=2e-3 * U_MAX)
+    expected = np.maximum([0, U_MAX, 0, 0, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX], idle_u)
+    np.testing.assert_allclose(tel.motors, expected, atol=2e-3 * U_MAX)
     # The body rate reassembled from the modules' IMUs (each in its own tilted frame) is the body's. The lopsided
-    # command spins the assembly up, and the state is up to one 100 Hz reply old: 5% slack.
+    # command spins the assembly up, and the state is up to one command period old: 5% slack.
     omega = peer.sim.true_state().omega
     assert np.linalg.norm(omega) > 0.5
     np.testing.assert_allclose(tel.gyro, omega, rtol=0.05, atol=0.05)

@@ -10,6 +10,9 @@ from pydantic.dataclasses import dataclass
 from groundstation import config
 from groundstation.assembly.motor_map import MotorCommandMap
 
+FULL_CELL_V = 4.2
+"""A fully charged LiPo cell, V."""
+
 GRAVITY = 9.81
 """Standard gravity used throughout (the weight of a module is ``mass * GRAVITY``), m/s^2."""
 
@@ -72,7 +75,9 @@ class ModuleParams:
         return self
 
     def _map_reference_v(self) -> float:
-        return self.motor_command.reference_battery_v or 0.0
+        """Battery the static reach check uses: the bolt fit's reference, a full cell on compensated platforms
+        (preflight checks the reach again at each module's measured battery)."""
+        return self.motor_command.reference_battery_v or FULL_CELL_V
 
     @property
     def max_thrust_per_module(self) -> float:

@@ -43,6 +43,10 @@ class Telemetry:
     link_loss: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Per-module fraction of recent commands the module did not accept (lost or reordered; NaN until measured;
     empty when not measured)."""
+    module_faults: tuple[str, ...] = ()
+    """Per module, why it no longer flies ("" while it does): its firmware stopped flying it since arming
+    (disarmed, locked, crashed, restarted, taking another sender's commands; latched for the rest of the flight),
+    or it sends no state (while it is silent); empty when the backend cannot tell."""
 
 
 def bounded_command(u: np.ndarray, u_max: float) -> np.ndarray:
@@ -113,6 +117,16 @@ class BackendBase(ABC):
     @property
     def armed(self) -> bool:
         return self._armed
+
+    def isolate(self, modules) -> bool:
+        """Take the faulty ``modules`` (indices) out of the flight, motors stopped, so the others can land the
+        assembly; False where the backend cannot stop single modules (the flight then stops them all)."""
+        return False
+
+    def idle_inputs(self) -> np.ndarray:
+        """(4n,) rotor inputs an armed module never goes below whatever it is sent (its firmware's idle floor),
+        rad^2/s^2; zeros where the firmware has none. Empty before the backend knows its modules."""
+        return np.zeros(0)
 
     @abstractmethod
     def connect(self) -> None: ...

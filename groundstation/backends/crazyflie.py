@@ -16,16 +16,18 @@ Link quality is measured from what the app reports: the round trip from the send
 sequence a state echoes (median of the newest few), and the loss from the app's count of accepted commands
 against the sequence numbers it saw go by over ``quality_window`` (a reordered or lost command is not accepted).
 Both are per module and reach the flight in :class:`~groundstation.backends.base.Telemetry`, whose failsafe
-policy acts on them. Measured on loopback at 250 Hz: 3.8 ms median with no added delay (the module reports every
-10 ms, echoing its newest command, and the loop polls once a period), +4 ms per 2 ms of added one-way delay.
+policy acts on them. The module answers each batch of commands with one state echoing its newest command, and the
+loop polls once a period, so the round trip includes up to one period of waiting for the poll.
 
 Safety at this edge: commands are bounded (``applied_command``) and carry the armed flag, so a module ignores them
 until armed; :meth:`arm` asks each module's supervisor to arm (Bolt and 2.1 Brushless builds require it) and
-raises :class:`~groundstation.errors.ArmingError` unless all confirm; :meth:`disarm` ends a flight normally
-(zero forces, supervisor disarmed: the module can fly again without a reboot); :meth:`emergency_stop` sends the
-supervisor's stop and the legacy one (firmware before 2026.04 drops the first), which lock the module until it
-is rebooted. A module whose state stopped for ``link_timeout`` makes ``link_ok`` False, and the flight stops; the
-app stops its motors by itself 100 ms after the last command.
+waits until each can fly, else raises :class:`~groundstation.errors.ArmingError`; :meth:`disarm` ends a flight
+normally (zero forces, supervisor disarmed: the module can fly again without a reboot); :meth:`emergency_stop`
+sends the supervisor's stop and the legacy one (firmware before 2026.04 drops the first), which lock the module
+until it is rebooted. A module that stops flying while armed (disarmed, locked, crashed, restarted, taking another
+sender's commands) or whose state stopped for ``link_timeout`` is named in ``Telemetry.module_faults``; a silent
+module also makes ``link_ok`` False unless it was isolated (:meth:`isolate`); the app stops its motors by itself
+100 ms after the last command.
 """
 
 from __future__ import annotations
@@ -39,18 +41,27 @@ import numpy as np
 from cflib.crtp.crtpstack import CRTPPacket
 
 from groundstation.assembly.module import ModuleParams
+from groundstation.assembly.motor_map import REQUIRES_ARMING
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
 from groundstation.errors import ArmingError, LinkError
 
 ARM_RETRY_S = 0.05
 """Interval between repeats of an unanswered supervisor request, s."""
-DISARM_CONFIRM_S = 0.3
-"""How long closing the backend waits for the modules to confirm a normal disarm, s."""
+FLYING_HYSTERESIS_S = 2.1
+"""The firmware's supervisor counts a module as flying until 2 s after a motor was last over idle (+ margin), s."""
+DISARM_CONFIRM_S = 2.5
+"""How long closing the backend waits for the modules to confirm a normal disarm and leave their Flying state, s."""
 STOP_REPEATS = 3
 """Emergency stops sent per module (each one latches; repeats cover a lost packet)."""
 MIN_LOSS_SAMPLES = 10
 """Fewest commands in the quality window for a loss figure."""
+REORDER_WINDOW = 64
+"""A state whose batch count (received + dropped, mod 65536) is up to this far behind the newest is an older one
+overtaken on the link; farther, the module restarted its counts."""
+ECHO_WINDOW = 1000
+"""A module flying on a command this backend sent is echoing one of its newest sequence numbers (4 s at 250 Hz);
+an echo outside them is another sender's command (its sequence numbers ahead of ours, so the module drops ours)."""
 PREFLIGHT_EXCHANGE_S = 1.0
 """Preflight streams disarmed zeros this long and judges the loss over all of it (250 commands at 250 Hz: a link
 losing 2 % shows over 10 % with probability below 1e-9), s."""
@@ -158,8 +169,9 @@ class CrazyflieSettings:
     """Preflight: lowest acceptable battery voltage, V."""
     preflight_timeout: float = 1.5
     """Preflight: how long to wait for every module's answers, s (at least ``PREFLIGHT_EXCHANGE_S``)."""
-    arm_timeout: float = 1.0
-    """How long :meth:`CrazyflieBackend.arm` waits for every supervisor to confirm, s."""
+    arm_timeout: float = 3.0
+    """How long :meth:`CrazyflieBackend.arm` waits for every module to be able to fly, s: a 2.1 Brushless spins
+    its motors up through a 200 ms RPM check and gives up after 2 s."""
     command_period: float = 0.004
     """The flight's control period: preflight streams and polls at it, so the round trips it measures are the
     flight's (they include the wait for the next poll), s."""
@@ -202,6 +214,17 @@ class _Module:
         """(time, echoed sequence, accepted count) of recent states, for the loss."""
         self.rtts: deque = deque()
         """Round trips of the newest states that echoed a new sequence, s."""
+        self.fault = ""
+        """Why the module stopped flying since arming ("" while it flies); latched."""
+
+
+def _age_text(age: float) -> str:
+    return "never heard" if not np.isfinite(age) else f"for {age * 1e3:.0f} ms"
+
+
+def _signed16(x: int) -> int:
+    """A difference of two wrapping 16-bit counters, in -32768..32767."""
+    return ((x + 0x8000) & 0xFFFF) - 0x8000
 
 
 class CrazyflieBackend(BackendBase):
@@ -226,7 +249,11 @@ class CrazyflieBackend(BackendBase):
         self._armed = False
         self._disarm_requested = False
         self._stop_sent = False
+        self._isolated: set[int] = set()
+        """Modules taken out of the flight (:meth:`isolate`)."""
         self._seq = 0
+        self._thrust_sent = -np.inf
+        """When a command with thrust was last sent, s."""
         self._sent = 0
         """Commands sent per module by this backend (its sequence numbers are 1..sent, mod 65536)."""
         self._sent_at = np.full(1 << 16, np.nan)
@@ -306,62 +333,114 @@ class CrazyflieBackend(BackendBase):
         return PreflightReport(not issues, tuple(issues))
 
     def arm(self) -> None:
-        """Ask every module's supervisor to arm; raises ArmingError (nothing armed) unless all confirm within
-        ``arm_timeout``. Flight must follow at once: a supervisor disarms after 30 s armed without flying."""
+        """Ask every module's supervisor to arm and wait, per module, until it reports that it can fly (on a 2.1
+        Brushless that means its motors spun up through the RPM check at the idle floor); streams disarmed zeros
+        meanwhile, so the modules answer and nothing but the idle floor spins. A refusal is asked again until
+        ``arm_timeout`` (a supervisor refuses during its re-arm cycle and just after boot); a locked module is
+        final. Raises ArmingError (every module asked to disarm) unless all can fly. Flight must follow at once: a
+        supervisor disarms after 30 s armed without flying."""
         if not self._modules:
             raise ArmingError("not connected")
         for m in self._modules:
             m.arm_reply = None
         pending = set(range(len(self._modules)))
-        refused: dict[int, str] = {}
-        deadline = self._clock() + self.settings.arm_timeout
+        locked: set[int] = set()
+        since = self._clock()
+        deadline = since + self.settings.arm_timeout
+        next_request = since
         while pending and self._clock() < deadline:
-            for i in pending:
-                self._modules[i].sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, wire.arm_request(True)), True)
-            wait_end = min(self._clock() + ARM_RETRY_S, deadline)
-            while pending and self._clock() < wait_end:
-                time.sleep(0.005)
-                self._drain()
-                for i in list(pending):
-                    reply = self._modules[i].arm_reply
-                    if reply is not None and reply[1]:
-                        pending.discard(i)
-                    elif reply is not None and not reply[0]:
-                        pending.discard(i)
-                        refused[i] = "its supervisor refused (locked, tumbled or not ready: reboot or level it)"
+            if self._clock() >= next_request:
+                for i in pending:
+                    m = self._modules[i]
+                    reply, st = m.arm_reply, m.state if m.heard >= since else None
+                    # Unanswered, refused, or armed and then disarmed again (a 2.1 Brushless's spin-up timeout, a
+                    # 2.x's pre-flight timeout): ask again.
+                    if reply is None or not reply[1] or (st is not None and not st.supervisor_armed):
+                        m.sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, wire.arm_request(True)), True)
+                next_request = self._clock() + ARM_RETRY_S
+            self._send_all(np.zeros((len(self._modules), 4)), armed=False)
+            time.sleep(self.settings.command_period)
+            self._drain()
+            for i in list(pending):
+                m = self._modules[i]
+                if m.heard >= since and m.state.locked:
+                    locked.add(i)
+                    pending.discard(i)
+                elif m.heard >= since and m.state.can_fly and m.arm_reply is not None and m.arm_reply[1]:
+                    pending.discard(i)
+        refused = {i: "its supervisor is locked (emergency stop or watchdog): reboot it" for i in locked}
         for i in pending:
-            refused[i] = f"no answer to the arming request within {self.settings.arm_timeout:g} s"
+            m = self._modules[i]
+            reply = m.arm_reply
+            if m.heard < since:
+                why = "sends no state"
+            elif reply is None:
+                why = "no answer to the arming request"
+            elif not reply[1]:
+                why = "its supervisor refused to arm (tumbled, or not ready)"
+            else:
+                why = "armed but its supervisor does not let it fly (motors not spinning up through the RPM check?)"
+            refused[i] = f"{why} within {self.settings.arm_timeout:g} s"
         if refused:
             self._request_disarm()
             raise ArmingError("; ".join(f"module {i} ({self.uris[i]}): {why}" for i, why in sorted(refused.items())))
         self._armed = True
         self._disarm_requested = False
+        for m in self._modules:
+            m.fault = ""
 
     def send(self, u: np.ndarray) -> None:
-        """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; modules ignore them unless armed."""
+        """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; modules ignore them unless armed; isolated
+        modules get zero."""
         u = applied_command(u, self._counts.size, self._armed, self.u_max)
         thrust = (self.module.c_f * u).reshape(-1, 4)
-        self._send_all(self._map.fractions(thrust, self._battery), armed=self._armed)
+        fractions = self._map.fractions(thrust, self._battery)
+        fractions[sorted(self._isolated)] = 0.0
+        self._send_all(fractions, armed=self._armed)
+
+    def isolate(self, modules) -> bool:
+        """Take faulty modules out of the flight: each gets the emergency stop (it locks until rebooted) and zero
+        commands, and its link no longer counts for ``link_ok``; the others fly on."""
+        for i in modules:
+            self._isolated.add(int(i))
+            for _ in range(STOP_REPEATS):
+                self._modules[i].sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, bytes([wire.CMD_EMERGENCY_STOP])),
+                                             True)
+                self._modules[i].sender.post(CRTPPacket(wire.LEGACY_STOP_HEADER,
+                                                        bytes([wire.LEGACY_EMERGENCY_STOP])), True)
+        return True
+
+    def idle_inputs(self) -> np.ndarray:
+        """The platform's idle floor (``powerDist.idleThrust``, Bolt and 2.1 Brushless) at each module's battery."""
+        idle = np.full(self._counts.shape, self._map.idle)
+        return (self._map.thrust(idle, self._battery) / self.module.c_f).reshape(-1)
 
     def telemetry(self) -> Telemetry:
         self._drain()
         now = self._clock()
         heard = np.array([m.heard for m in self._modules]) if self._modules else np.zeros(0)
         fresh = heard >= now - self.settings.link_timeout
+        counted = [i for i in range(len(self._modules)) if i not in self._isolated]
         thrust = self._map.thrust(self._counts, self._battery)
         quality = self.link_quality()
+        faults = tuple(m.fault or ("" if ok else f"sends no state ({_age_text(now - m.heard)}): link lost or the "
+                                                 f"module is off")
+                       for m, ok in zip(self._modules, fresh, strict=True))
         return Telemetry(stamp=float(heard.max()) if heard.size and np.isfinite(heard).any() else 0.0,
-                         link_ok=bool(self._modules) and bool(np.all(fresh)),
+                         link_ok=bool(counted) and bool(np.all(fresh[counted])),
                          motors=(thrust / self.module.c_f).reshape(-1), battery_v=self._battery.copy(),
                          gyro=body_rate(self._rotations, self._gyro), link_latency_s=quality.latency_s,
-                         link_loss=quality.loss)
+                         link_loss=quality.loss, module_faults=faults)
 
     def disarm(self) -> None:
-        """End a flight normally: zero forces, disarmed, and each supervisor asked to disarm (confirmed when the
-        backend closes). Unlike :meth:`emergency_stop`, the modules can fly again without a reboot."""
+        """End a flight normally: zero forces, disarmed, each supervisor asked to disarm and, before this returns,
+        confirmed (up to ``DISARM_CONFIRM_S``: see :meth:`_confirm_disarm`). Unlike :meth:`emergency_stop`, the
+        modules can fly again without a reboot."""
         self._armed = False
         self._send_all(np.zeros_like(self._counts), armed=False)
         self._request_disarm()
+        self._confirm_disarm()
+        self._disarm_requested = False
 
     def emergency_stop(self) -> None:
         """Supervisor emergency stop (and the legacy one) and a disarmed zero command to every module, at once."""
@@ -413,12 +492,29 @@ class CrazyflieBackend(BackendBase):
 
     # -- wire ---------------------------------------------------------------------------------------------------
     def _send_all(self, fractions: np.ndarray, armed: bool) -> None:
+        if armed and np.any(fractions > 0):
+            self._thrust_sent = self._clock()
         self._seq = (self._seq + 1) & 0xFFFF
         self._sent += 1
         self._sent_at[self._seq] = self._clock()
         for m, f in zip(self._modules, fractions, strict=False):
             cmd = wire.MotorCommand(self._seq, armed, wire.to_counts(f))
             m.sender.post(CRTPPacket(wire.APP_HEADER, cmd.pack()))
+
+    def _module_fault(self, st: wire.ModuleState, restarted: bool) -> str:
+        """Why an armed module's firmware no longer flies it ("" if it does)."""
+        if restarted:
+            return "rebooted (its command counts started again)"
+        if (self._seq - st.sequence) & 0xFFFF > ECHO_WINDOW:
+            return (f"takes commands from another sender (it applies sequence {st.sequence}, which this ground "
+                    f"station did not send)")
+        if st.locked:
+            return "locked by its supervisor (emergency stop or commander watchdog)"
+        if not st.supervisor_armed:
+            return "disarmed by its supervisor (tumbled, crashed, spin-up or pre-flight timeout)"
+        if not st.can_fly:
+            return "its supervisor no longer lets it fly (tumbled or crashed)"
+        return ""
 
     def _request_disarm(self) -> None:
         self._disarm_requested = True
@@ -427,16 +523,30 @@ class CrazyflieBackend(BackendBase):
             m.sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, wire.arm_request(False)), True)
 
     def _confirm_disarm(self) -> None:
-        """Repeat the disarm request until every module says it is disarmed, for at most DISARM_CONFIRM_S."""
-        deadline = self._clock() + DISARM_CONFIRM_S
-        repeat = self._clock() + ARM_RETRY_S
+        """Stream disarmed zeros until every module has confirmed the disarm and, on auto-arming platforms, its
+        flying hysteresis has run out, for at most ``DISARM_CONFIRM_S``; the disarm is repeated to the modules that
+        have not confirmed. The zeros matter on an auto-arming 2.x: it arms itself again at once and, a motor having
+        been over idle within ``FLYING_HYSTERESIS_S``, is flying again; left without commands it would level out
+        after 0.5 s and lock 2 s later (seen on the real firmware)."""
+        now = self._clock()
+        deadline = now + DISARM_CONFIRM_S
+        settled = self._thrust_sent + FLYING_HYSTERESIS_S if not REQUIRES_ARMING[self._map.platform] else now
+        repeat = now + ARM_RETRY_S
+        confirmed = [False] * len(self._modules)
         while self._clock() < deadline:
-            time.sleep(0.005)
+            self._send_all(np.zeros_like(self._counts), armed=False)
+            time.sleep(self.settings.command_period)
             self._drain()
-            if all(m.arm_reply is not None and not m.arm_reply[1] for m in self._modules):
+            for i, m in enumerate(self._modules):
+                confirmed[i] = confirmed[i] or (m.arm_reply is not None and not m.arm_reply[1])
+            landed = all(m.state is not None and not m.state.flying for m in self._modules)
+            if all(confirmed) and landed and self._clock() >= settled:
                 return
             if self._clock() >= repeat:
-                self._request_disarm()
+                for i, m in enumerate(self._modules):
+                    if not confirmed[i]:
+                        m.arm_reply = None
+                        m.sender.post(CRTPPacket(wire.SUPERVISOR_HEADER, wire.arm_request(False)), True)
                 repeat += ARM_RETRY_S
 
     def _drain(self) -> None:
@@ -460,7 +570,18 @@ class CrazyflieBackend(BackendBase):
 
     def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float) -> None:
         previous = m.state
+        restarted = False
+        if previous is not None:
+            # Every state answers a batch of at least one packet, accepted or dropped: received + dropped rises with
+            # each. A state that does not advance it was overtaken on a reordering or duplicating link; one that
+            # falls far was sent by a module that restarted its counts.
+            advance = _signed16(st.received + st.dropped - previous.received - previous.dropped)
+            if -REORDER_WINDOW < advance <= 0:
+                return  # an older or repeated state: the newer one stands
+            restarted = advance <= -REORDER_WINDOW
         m.state, m.heard = st, now
+        if self._armed and not m.fault:
+            m.fault = self._module_fault(st, restarted)
         # Only echoes of this backend's own commands measure the link (a module still echoes the previous
         # session's last command until it accepts one of ours).
         ours = self._sent >= 1 << 16 or (st.sequence - 1) & 0xFFFF < self._sent

@@ -11,12 +11,14 @@ App channel (port 13, channel 2), little-endian:
 
 * Motor command, ground -> module, 12 bytes ``<BBH4H``: kind ``0x01``, flags (bit 0 armed), a 16-bit sequence,
   four normalized forces ``round(f / f_max * 65535)`` in the module's rotor order (the platform's map from thrust
-  to normalized force is :mod:`groundstation.backends.thrust_map`).
+  to normalized force is :mod:`groundstation.assembly.motor_map`).
 * Broadcast command, ground -> up to four modules in one no-ack packet: kind ``0x02``, flags, sequence, first
   slot, module count, then per module four 12-bit forces packed in 6 bytes (``motorApp.slot`` picks a module's).
-* State, module -> ground, unprompted about every 10 ms, 30 bytes ``<BBH4HH3fHH``: kind ``0x81``, flags (armed,
-  locked, supervisor armed, fresh), the sequence of the newest command accepted (the latency probe), the forces
-  applied, battery in mV, gyro in rad/s (module frame), commands accepted and commands dropped (both wrap).
+* State, module -> ground, one per batch of commands the app receives (never unprompted, so a ground station that
+  connects reads no backlog), 30 bytes ``<BBH4HH3fHH``: kind ``0x81``, flags (armed, locked, supervisor armed,
+  fresh, can fly, flying), the sequence of the newest command accepted (the latency probe), the motor ratios that
+  reach the motors (after the firmware's battery compensation, dead zone, idle floor and shared cap), battery in
+  mV, gyro in rad/s (module frame), commands accepted and commands dropped (both wrap).
 
 Firmware services the backend uses directly (crazyflie-firmware >= 2026.04, CRTP protocol 12):
 
@@ -50,8 +52,9 @@ MAX_DATA = 30
 """CRTP payload limit, bytes."""
 MIN_PROTOCOL_VERSION = 12
 """crazyflie-firmware 2026.04: the supervisor port (arming, emergency stop) the backend relies on."""
-APP_VERSION = 1
-"""The contract version this module speaks; the app serves it read-only as ``motorApp.version``."""
+APP_VERSION = 2
+"""The contract version this module speaks; the app serves it read-only as ``motorApp.version``. Version 2: forces
+only while the supervisor can fly, states report motor ratios and answer commands."""
 
 KIND_COMMAND = 0x01
 KIND_BROADCAST = 0x02
@@ -61,6 +64,8 @@ STATE_ARMED = 0x01
 STATE_LOCKED = 0x02
 STATE_SUPERVISOR_ARMED = 0x04
 STATE_FRESH = 0x08
+STATE_CAN_FLY = 0x10
+STATE_FLYING = 0x20
 FULL_SCALE = 65535
 BROADCAST_FULL_SCALE = 4095
 BROADCAST_MAX_MODULES = 4
@@ -161,7 +166,7 @@ class ModuleState:
     sequence: int
     """Sequence of the newest command the module accepted."""
     counts: tuple[int, int, int, int]
-    """Normalized forces applied, 0..65535."""
+    """Motor ratios that reach the motors (``motorsGetRatio``), 0..65535."""
     battery_mv: int
     gyro: tuple[float, float, float]
     """Module body frame, rad/s."""
@@ -186,6 +191,17 @@ class ModuleState:
     @property
     def fresh(self) -> bool:
         return bool(self.flags & STATE_FRESH)
+
+    @property
+    def can_fly(self) -> bool:
+        """The supervisor lets flight commands through (armed, past the brushless RPM check, not tumbled)."""
+        return bool(self.flags & STATE_CAN_FLY)
+
+    @property
+    def flying(self) -> bool:
+        """The supervisor's Flying (or WarningLevelOut) state: a motor over idle in the last 2 s. A module left
+        there without commands levels out after 0.5 s and locks after 2 s (its commander watchdog)."""
+        return bool(self.flags & STATE_FLYING)
 
     @property
     def battery_v(self) -> float:
@@ -245,8 +261,8 @@ def _command_vectors() -> list[tuple[int, bytes, str, MotorCommand | None]]:
 
 STATE_VECTORS = (
     ModuleState(0, 0, (0, 0, 0, 0), 0, (0.0, 0.0, 0.0), 0, 0),
-    ModuleState(STATE_ARMED | STATE_SUPERVISOR_ARMED | STATE_FRESH, 258, (1, 2, 65535, 32768), 3987,
-                (0.5, -0.25, 1.0), 7, 43981),
+    ModuleState(STATE_ARMED | STATE_SUPERVISOR_ARMED | STATE_FRESH | STATE_CAN_FLY | STATE_FLYING, 258,
+                (1, 2, 65535, 32768), 3987, (0.5, -0.25, 1.0), 7, 43981),
     ModuleState(STATE_LOCKED, 65535, (65535, 65535, 65535, 65535), 16800, (3.1415927, -34.9, 1e-3), 65535, 1),
 )
 

@@ -194,7 +194,8 @@ PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
 @click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
               help="Zenoh endpoint the virtual mocap listens on.")
 @click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
-@click.option("--physics-hz", type=float, default=sim_physics_hz, help="Physics rate, Hz (default: the simulator's).")
+@click.option("--physics-hz", type=float, default=None,
+              help="Physics rate, Hz (default: the simulator's; 1000 with --firmware).")
 @click.option("--platform", type=click.Choice(["cf2", "cf21bl", "bolt"]), default="bolt", show_default=True,
               help="crtp: the Crazyflie platform simulated (bolt and cf21bl must be asked to arm; cf2 arms itself).")
 @click.option("--stock-firmware", is_flag=True,
@@ -202,9 +203,16 @@ PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
 @click.option("--params", "param_file", type=click.Path(dir_okay=False), default=None,
               help="Start the modules with these firmware parameters set (a firmware_params/ file: modules "
                    "already configured); otherwise they have stock values.")
+@click.option("--firmware", "firmware_binary", type=click.Path(dir_okay=False), default=None,
+              help="crtp: run the real crazyflie-firmware, one process per module: a cf_sitl binary built by "
+                   "firmware/crazyflie_sitl for --platform (physics then runs at the firmware's 1 kHz).")
+@click.option("--state-dir", type=click.Path(file_okay=False), default=None,
+              help="--firmware: where the modules keep their stored parameters and console logs (default: a "
+                   "temporary directory; give one to keep stored parameters across runs).")
 @click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
-def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, body: str, physics_hz: float,
-                     platform: str, stock_firmware: bool, param_file: str | None, duration: float | None) -> int:
+def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, body: str, physics_hz: float | None,
+                     platform: str, stock_firmware: bool, param_file: str | None, firmware_binary: str | None,
+                     state_dir: str | None, duration: float | None) -> int:
     """Simulate an assembly's modules behind their wire protocol on loopback UDP, with its pose on Zenoh.
 
     Fly it with a config whose backend is crazyflie (modules udp://127.0.0.1:PORT, PORT+1, ...) or mavlink
@@ -221,13 +229,22 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     peer_class, scheme = load(kind.peer), kind.peer_scheme
     asm, _ = load_assembly(assembly)
     params = tuple(load_param_file(param_file).items()) if param_file else ()
+    extra = {}
+    if firmware_binary is not None:
+        if protocol != "crtp" or stock_firmware or param_file:
+            raise UsageError("--firmware runs Crazyflie firmware (--protocol crtp), with the motor app and the "
+                             "parameters it stores itself (set them with 'groundstation params --apply')")
+        from sim.firmware_peer import FIRMWARE_PHYSICS_HZ, FirmwareCrazyflies
+
+        peer_class, extra = FirmwareCrazyflies, {"binary": firmware_binary, "state_dir": state_dir}
+        physics_hz = physics_hz or FIRMWARE_PHYSICS_HZ
     peer = peer_class(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
-                                      physics_hz=physics_hz, params=params, platform=platform,
-                                      motor_app=not stock_firmware))
+                                      physics_hz=physics_hz or sim_physics_hz(), params=params, platform=platform,
+                                      motor_app=not stock_firmware), **extra)
     try:
         peer.open()
     except (OSError, ValueError) as exc:  # port taken; a parameter these modules do not have
-        raise UsageError(f"{param_file}: {exc}" if isinstance(exc, ValueError) else str(exc)) from None
+        raise UsageError(f"{param_file}: {exc}" if param_file and isinstance(exc, ValueError) else str(exc)) from None
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: peer.stop_event.set())
     links = ", ".join(f"{scheme}{peer.config.host}:{port + i}" for i in range(asm.n))

@@ -45,10 +45,30 @@ class ControlModel:
     def from_assembly(cls, assembly: Assembly, delta: float = 1e-6) -> ControlModel:
         """``delta`` regularizes the inverse in normalized units (inputs / u_max, wrench / S)."""
         p = assembly.params
-        a = assembly.allocation
         s = np.array([p.c_f * p.u_max] * 3 + [p.c_f * p.u_max * p.l_arm] * 3)
-        a_v = a * p.u_max / s[:, None]
-        pinv = p.u_max * a_v.T @ np.linalg.inv(a_v @ a_v.T + delta * np.eye(6)) / s[None, :]
+        return cls._build(assembly.mass, assembly.inertia, assembly.allocation, s, p.u_max, delta)
+
+    def without_modules(self, failed, delta: float = 1e-6) -> ControlModel:
+        """The same assembly with the rotors of modules ``failed`` (indices) producing nothing: their columns of A
+        are zero, so the allocation gives them zero and the rest produce the wrench alone."""
+        a = np.array(self.allocation)
+        for i in failed:
+            a[:, 4 * i:4 * i + 4] = 0.0
+        return self._build(self.mass, self.inertia, a, self.wrench_scale, self.u_max, delta)
+
+    def can_hold(self, wrench: np.ndarray, tolerance: float = 0.01) -> bool:
+        """The rotors, each within [0, u_max], produce ``wrench`` (body frame) to ``tolerance`` of the scales."""
+        from scipy.optimize import lsq_linear
+
+        a_v = self.allocation * self.u_max / self.wrench_scale[:, None]
+        sol = lsq_linear(a_v, np.asarray(wrench, float) / self.wrench_scale, bounds=(0.0, 1.0), method="bvls")
+        return bool(np.max(np.abs(a_v @ sol.x - wrench / self.wrench_scale)) <= tolerance)
+
+    @classmethod
+    def _build(cls, mass: float, inertia: np.ndarray, a: np.ndarray, s: np.ndarray, u_max: float,
+               delta: float) -> ControlModel:
+        a_v = a * u_max / s[:, None]
+        pinv = u_max * a_v.T @ np.linalg.inv(a_v @ a_v.T + delta * np.eye(6)) / s[None, :]
         u_svd, sv, _ = np.linalg.svd(a_v)
         null = u_svd[:, sv < 1e-9 * sv[0]]
         force_part, torque_part = null[:3], null[3:]
@@ -60,7 +80,6 @@ class ControlModel:
             null_force = force_part.T
         else:
             actuation, null_force = "mixed", np.zeros((0, 3))
-        return cls(mass=assembly.mass, inertia=_frozen(assembly.inertia), allocation=_frozen(a),
-                   wrench_scale=_frozen(s), pinv=_frozen(pinv), u_max=p.u_max, actuation=actuation,
-                   null_force=_frozen(null_force))
+        return cls(mass=mass, inertia=_frozen(inertia), allocation=_frozen(a), wrench_scale=_frozen(s),
+                   pinv=_frozen(pinv), u_max=u_max, actuation=actuation, null_force=_frozen(null_force))
 

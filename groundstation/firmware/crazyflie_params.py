@@ -11,16 +11,23 @@ firmware is flashed.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from pathlib import Path
 
 from cflib.crazyflie import Crazyflie
 from cflib.crazyflie.param import ParamTocElement
+from cflib.crtp.crtpstack import CRTPPacket
+from cflib.crtp.udpdriver import UdpDriver
 
+from groundstation.backends import crtp_wire as wire
 from groundstation.backends.crazyflie import ensure_drivers
 from groundstation.firmware.params import ParamCheck, matches
 
-ATTEMPTS = 3
+ATTEMPTS = 5
+"""Connections tried per module."""
+FIRST_ANSWER_S = 1.0
+"""How long a connection attempt waits for the module's first packet, s."""
 
 
 class _Values:
@@ -48,23 +55,64 @@ class _Values:
             return None
 
 
+class _RepeatingCrazyflie(Crazyflie):
+    """cflib's ``Crazyflie`` repeating unanswered requests from the very first one.
+
+    cflib repeats a request only where the link driver asks for it (a radio without safelink); its UDP driver
+    assumes loopback never loses a packet. A relayed or bridged link can: repeat there too (the requests are reads,
+    and writes of the same value, so a repeat is harmless). The flag must be set before the connection set-up's
+    first request (the platform version), which ``open_link`` sends before it returns: a lost one was never repeated
+    and the connection hung (cflib 0.1.34's ``_start_connection_setup``)."""
+
+    def _start_connection_setup(self):
+        self.link.needs_resending = True
+        super()._start_connection_setup()
+
+
 def _connect(uri: str, timeout: float, cache: str | None) -> tuple[Crazyflie | None, str]:
-    """A fully connected ``Crazyflie`` (TOC and values downloaded), or None and why not."""
-    cf = Crazyflie(rw_cache=cache)
-    ready = threading.Event()
+    """A fully connected ``Crazyflie`` (TOC and values downloaded), or None and why not. The set-up's first request
+    (the protocol version) is one cflib never repeats: without an answer within ``FIRST_ANSWER_S`` the attempt ends
+    early, so a lost packet costs a second, not the whole timeout."""
+    cf = _RepeatingCrazyflie(rw_cache=cache)
+    ready, answered = threading.Event(), threading.Event()
     failure: list[str] = []
+    cf.link_established.add_callback(lambda _uri: answered.set())
     cf.fully_connected.add_callback(lambda _uri: ready.set())
-    cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg).splitlines()[0]), ready.set()))
+    cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg).splitlines()[0]), ready.set(),
+                                                         answered.set()))
     cf.open_link(uri)
-    if cf.link is not None:
-        # cflib repeats an unanswered request only where the link driver asks for it (a radio without safelink);
-        # its UDP driver assumes loopback never loses a packet. A relayed or bridged link can: repeat there too
-        # (the requests are reads, and writes of the same value, so a repeat is harmless).
-        cf.link.needs_resending = True
-    if ready.wait(timeout) and not failure:
+    if answered.wait(min(FIRST_ANSWER_S, timeout)) and ready.wait(timeout) and not failure:
         return cf, ""
-    cf.close_link()
+    _close(cf)
     return None, failure[0] if failure else f"no answer within {timeout:g} s"
+
+
+def _close(cf: Crazyflie) -> None:
+    """``close_link`` without its two waits of up to a second each: cflib's packet thread sleeps in a 1 s receive
+    and its UDP driver's receive thread in a 1 s socket timeout when the module sends nothing unprompted (the motor
+    app only answers commands), and closing joins both. Wake them first (cflib 0.1.34 internals: ``incoming``, the
+    driver's ``in_queue``, where a None packet is skipped, and the UDP receive thread's stop flag ``_sp``, set before
+    a version request whose answer ends its receive)."""
+    cf.incoming.stop()
+    in_queue = getattr(cf.link, "in_queue", None)
+    if in_queue is not None:
+        in_queue.put(None)
+    receiver = getattr(cf.link, "_thread", None)
+    if isinstance(cf.link, UdpDriver) and receiver is not None and hasattr(receiver, "_sp"):
+        receiver._sp = True
+        with contextlib.suppress(Exception):
+            cf.link.send_packet(CRTPPacket(wire.VERSION_HEADER, bytes([wire.GET_PROTOCOL_VERSION])))
+    cf.close_link()
+
+
+def _stored_value(cf: Crazyflie, name: str, timeout: float) -> float | None:
+    """The value a persistent parameter has stored in the module's EEPROM, or None (not stored, no answer)."""
+    done = threading.Event()
+    result: list = []
+    cf.param.persistent_get_state(name, lambda _name, state: (result.append(state), done.set()))
+    if not done.wait(timeout) or not result or result[0] is None or not result[0].is_stored:
+        return None
+    return float(result[0].stored_value)
 
 
 def _store(cf: Crazyflie, name: str, timeout: float) -> bool:
@@ -102,6 +150,17 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
                 continue
             group, short = name.split(".")
             actual = float(cf.param.values[group][short])
+            if matches(actual, expected) and element.is_persistent():
+                # Right in RAM is not enough: a value set but never stored (by hand, or an interrupted apply) is
+                # lost at the reboot an emergency stop requires. Store it (only then: EEPROM wears) with --apply.
+                stored = _stored_value(cf, name, timeout)
+                if (stored is not None and matches(stored, expected)) or (apply and _store(cf, name, timeout)):
+                    checks.append(ParamCheck(module, uri, name, expected, actual, stored=True))
+                else:
+                    back = "the stock value" if stored is None else f"{stored:g}"
+                    checks.append(ParamCheck(module, uri, name, expected, None,
+                                             note=f"right in RAM but not stored: a reboot brings {back} back"))
+                continue
             if not apply or matches(actual, expected):
                 checks.append(ParamCheck(module, uri, name, expected, actual))
                 continue
@@ -123,7 +182,7 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
             checks.append(ParamCheck(module, uri, name, expected, actual, written=True, stored=stored, note=note))
         return checks
     finally:
-        cf.close_link()
+        _close(cf)
 
 
 TOC_CACHE = ".cflib-toc"

@@ -5,9 +5,10 @@ States and transitions (each logged as an event)::
     preflight -> takeoff -> settle -> track -> hold -> landing -> done
     preflight --(a module refuses to arm)--> aborted
          any airborne state --(operator land, mocap stale or link degraded with policy "land", the assembly
-                               not following its reference)--> landing
+                               not following its reference, a module fault the other modules can fly
+                               through: the faulty ones isolated)--> landing
          any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale or link degraded with
-                      "stop")--> emergency
+                      "stop", a module fault the others cannot fly through)--> emergency
 
 ``landing`` descends from where the reference is to below the ground and ends in ``done``: motors off and the
 modules disarmed (they can fly again). ``emergency`` sends the backend's emergency stop in the same period it is
@@ -26,6 +27,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import Backend, SimulatedBackend
 from groundstation.control.allocation import allocate, allocate_bounded
 from groundstation.control.geometric import Gains, control
@@ -173,6 +175,10 @@ class Recording:
     phase: list = field(default_factory=list)
 
 
+HOLD_MARGIN = 1.2
+"""Modules left after a module fault land the assembly only if they can hold this many times its weight."""
+
+
 class Flight:
     """One flight of one assembly; :meth:`run` flies it on a clock and returns what happened."""
 
@@ -219,6 +225,8 @@ class Flight:
         self._hi = np.array(self.policy.geofence_upper)
         self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
         self._stats: LoopStats | None = None
+        self._failed_modules: set[int] = set()
+        """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _log_time(self, t: float) -> float:
@@ -282,8 +290,13 @@ class Flight:
         telemetry = self.backend.telemetry()
         self.pose.set_body_rate(telemetry.gyro if telemetry.gyro.size == 3 else None)  # the mocap attitude gate
         state, age = self.pose.state(), self.pose.age()
+        if any(telemetry.module_faults):
+            if not self._on_module_fault(t, state, telemetry):
+                return False
+            telemetry = self.backend.telemetry()  # the faulty modules, isolated, no longer count for the link
         if not telemetry.link_ok:
-            self._emergency(t, "backend link lost")
+            named = "; ".join(f"module {i} {why}" for i, why in enumerate(telemetry.module_faults) if why)
+            self._emergency(t, "backend link lost" + (f": {named}" if named else ""))
             return False
         degraded, severe = self._link_degraded(telemetry)
         if degraded:
@@ -355,6 +368,27 @@ class Flight:
         self.backend.send(u)
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
+        return True
+
+    def _on_module_fault(self, t: float, state: RigidState | None, telemetry) -> bool:
+        """React to modules whose firmware stopped flying them (or that went silent): land on the others if their
+        rotors alone hold the assembly's weight with a margin at its attitude and the backend can stop the faulty
+        ones, else stop. False when the motors were stopped."""
+        new = {i: why for i, why in enumerate(telemetry.module_faults) if why and i not in self._failed_modules}
+        if not new:
+            return True
+        self._failed_modules.update(new)
+        names = "; ".join(f"module {i} {why}" for i, why in sorted(new.items()))
+        rest = self.model.without_modules(sorted(self._failed_modules))
+        in_air = self.phase.airborne or self.phase == Phase.LANDING
+        holds = state is not None and bool(np.all(np.isfinite(state.rotation))) and rest.can_hold(np.concatenate([
+            state.rotation.T @ np.array([0.0, 0.0, HOLD_MARGIN * self.model.mass * GRAVITY]), np.zeros(3)]))
+        if not (in_air and holds and self.backend.isolate(sorted(new))):
+            self._emergency(t, f"{names}: the other modules cannot hold the assembly")
+            return False
+        self.model = rest
+        self._landing = None  # land from here, on the rest
+        self._begin_landing(t, state.position, f"{names}: landing on the other modules")
         return True
 
     def _link_degraded(self, telemetry) -> tuple[str, bool]:

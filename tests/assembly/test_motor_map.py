@@ -9,20 +9,78 @@ from groundstation.config import validate
 from groundstation.errors import ConfigError
 from tests.peers import ROOT
 
-# crazyflie-firmware 2026.08 platform_defaults_cf2.h / _cf21bl.h (battery compensation on): THRUST_MAX per rotor.
+# crazyflie-firmware 2026.08 platform_defaults_cf2.h / _cf21bl.h (battery compensation on): THRUST_MAX per rotor,
+# THRUST_MIN and the cubic fit of thrust against motor voltage, written out here from the firmware headers.
 CF2_THRUST_MAX, CF21BL_THRUST_MAX = 0.12, 0.2
+FIT = {"cf2": ((-0.02476537915958403, 0.06523793527519485, -0.026792504967750107, 0.006776789303971145),
+               0.012817578393224994),
+       "cf21bl": ((-0.014058926705279723, 0.04265273261724981, 0.0018327760144017432, 0.0020576974784587178),
+                  0.02136263065537499)}
+
+
+def firmware_ratio(platform, thrust, supply_v):
+    """motorsCompensateBatteryVoltage, solved here with numpy's polynomial roots (not the firmware's closed form)."""
+    (c0, c1, c2, c3), thrust_min = FIT[platform]
+    if thrust < thrust_min:
+        return 0.0
+    roots = np.roots([c3, c2, c1, c0 - thrust])
+    v = min(r.real for r in roots if abs(r.imag) < 1e-9 and r.real > 0)
+    return v / supply_v
 
 
 @pytest.mark.parametrize("platform, thrust_max", [("cf2", CF2_THRUST_MAX), ("cf21bl", CF21BL_THRUST_MAX)])
-def test_crazyflie_force_is_a_fraction_of_thrust_max_whatever_the_battery(platform, thrust_max):
+def test_compensated_platforms_give_the_thrust_asked_for_whatever_the_battery(platform, thrust_max):
     m = MotorCommandMap(platform=platform, thrust_max_n=thrust_max)
-    f = np.array([[0.0, thrust_max / 4, thrust_max / 2, thrust_max], [thrust_max * 2, -1.0, 0.03, 0.06]])
-    for battery in ([4.2, 3.7], [3.3, 0.0]):  # the firmware compensates the battery: the map does not move
-        r = m.fractions(f, battery)
-        np.testing.assert_allclose(r, [[0, 0.25, 0.5, 1], [1, 0, 0.03 / thrust_max, 0.06 / thrust_max]])
-        # What the firmware's power distribution and battery compensation turn back into thrust: r * THRUST_MAX.
-        np.testing.assert_allclose(m.thrust(r, battery), np.clip(f, 0, thrust_max))
-    np.testing.assert_allclose(m.max_thrust([3.0, 4.2]), thrust_max)
+    f = np.array([[0.2, 0.4, 0.7, 1.0]]) * thrust_max
+    for v in (4.2, 3.8, 3.5):
+        r = m.fractions(f, [v])
+        np.testing.assert_allclose(r, f / thrust_max)  # a fraction of THRUST_MAX while the battery supplies it
+        ratios = m.motor_ratios(r, [v])
+        expected = [firmware_ratio(platform, x, v) for x in f[0]]
+        np.testing.assert_allclose(ratios[0], expected, rtol=1e-6)
+        np.testing.assert_allclose(m.thrust(ratios, [v]), f, rtol=1e-6)  # the motor produces what was asked
+
+
+def test_half_force_at_3_9_v_is_the_ratio_the_real_firmware_set():
+    """Measured on crazyflie-firmware 2026.08 run natively (issue 19): 0.5 commanded on a cf2 at 3.9 V -> 36507."""
+    m = MotorCommandMap(platform="cf2", thrust_max_n=CF2_THRUST_MAX)
+    assert abs(m.motor_ratios([[0.5] * 4], [3.9])[0, 0] * 65535 - 36507) <= 1
+
+
+@pytest.mark.parametrize("platform, thrust_max", [("cf2", CF2_THRUST_MAX), ("cf21bl", CF21BL_THRUST_MAX)])
+def test_dead_zone_below_thrust_min(platform, thrust_max):
+    m = MotorCommandMap(platform=platform, thrust_max_n=thrust_max)
+    tmin = FIT[platform][1]
+    assert tmin / thrust_max == pytest.approx(0.107, abs=0.001)
+    just_below = m.motor_ratios([[tmin / thrust_max * 0.999] * 4], [4.0], armed=True)
+    np.testing.assert_allclose(just_below, m.idle)  # nothing but the idle floor: the firmware outputs 0
+    # The ground station asks for the nearer of 0 and THRUST_MIN, never for a thrust the firmware drops.
+    np.testing.assert_allclose(m.fractions([[tmin * 0.4, tmin * 0.6, tmin, 0.0]], [4.0]) * thrust_max,
+                               [[0.0, tmin, tmin, 0.0]], atol=1e-12)
+
+
+def test_low_battery_cap_takes_the_excess_off_all_four_rotors():
+    m = MotorCommandMap(platform="cf21bl", thrust_max_n=CF21BL_THRUST_MAX)
+    v = 2.9  # under load: full thrust needs more than the battery's voltage
+    ratios = m.motor_ratios([[1.0, 0.6, 0.6, 0.3]], [v])[0]
+    raw = np.array([firmware_ratio("cf21bl", x * CF21BL_THRUST_MAX, v) for x in (1.0, 0.6, 0.6, 0.3)])
+    assert raw[0] > 1.0
+    np.testing.assert_allclose(ratios, raw - (raw[0] - 1.0), rtol=1e-6)  # the same excess off every rotor
+    # The ground station bounds each rotor at what the battery reaches, so the cap never moves the others.
+    reach = m.max_thrust([v])[0]
+    assert reach < CF21BL_THRUST_MAX
+    asked = np.array([[0.2, 0.12, 0.12, 0.06]])
+    sent = m.motor_ratios(m.fractions(asked, [v]), [v])
+    np.testing.assert_allclose(m.thrust(sent, [v])[0, 1:], asked[0, 1:], rtol=1e-6)
+    assert m.thrust(sent, [v])[0, 0] == pytest.approx(reach, rel=1e-6)
+
+
+@pytest.mark.parametrize("platform, idle", [("cf2", 0.0), ("cf21bl", 7000 / 65535), ("bolt", 7000 / 65535)])
+def test_idle_floor_while_armed(platform, idle):
+    m = (MotorCommandMap(platform="bolt", thrust_poly_n=(0.0, 0.0, 1.548), reference_battery_v=3.5)
+         if platform == "bolt" else MotorCommandMap(platform=platform, thrust_max_n=0.12))
+    np.testing.assert_allclose(m.motor_ratios(np.zeros((1, 4)), [4.0], armed=True), idle)
+    np.testing.assert_allclose(m.motor_ratios(np.full((1, 4), 0.5), [4.0], armed=False), 0.0)
 
 
 def test_bolt_command_is_the_esc_ratio_compensated_by_the_ground_station():
@@ -32,7 +90,8 @@ def test_bolt_command_is_the_esc_ratio_compensated_by_the_ground_station():
         r = m.fractions(f, [v])
         x = r * v / 4.0  # the ESC applies r of the battery: thrust is the fit at that effective command
         np.testing.assert_allclose(0.2 * x + 1.3 * x**2, f, atol=1e-12)
-        np.testing.assert_allclose(m.thrust(r, [v]), f, atol=1e-12)
+        idle = m.thrust([[m.idle] * 4], [v])  # an armed Bolt never turns slower than the idle floor
+        np.testing.assert_allclose(m.thrust(m.motor_ratios(r, [v]), [v]), np.maximum(f, idle), atol=1e-12)
     # A weaker battery needs a larger command for the same thrust, and reaches less at full command.
     assert m.fractions(f, [3.6])[0, 2] > m.fractions(f, [4.0])[0, 2]
     np.testing.assert_allclose(m.max_thrust([4.0, 3.6]), [1.5, 0.2 * 0.9 + 1.3 * 0.81])

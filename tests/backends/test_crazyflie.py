@@ -40,7 +40,10 @@ def test_commands_reach_the_modules_and_the_state_comes_back():
     peer, th = start_peer(19860, 7471)
     try:
         with backend(19860) as be:
-            peers.check_commands_and_state(be, peer)
+            motor_map = ASM.params.motor_command
+            idle_u = float(motor_map.thrust([[motor_map.idle]], [4.0])[0, 0]) / ASM.params.c_f
+            assert 0.01 * U_MAX < idle_u < 0.02 * U_MAX  # a Bolt's 7000 / 65535 at 4 V
+            peers.check_commands_and_state(be, peer, idle_u)
             assert be.preflight().issues == (
                 "module 0 (udp://127.0.0.1:19860) is locked by an emergency stop or watchdog: reboot it",
                 "module 1 (udp://127.0.0.1:19861) is locked by an emergency stop or watchdog: reboot it")
@@ -72,8 +75,33 @@ def test_supervisor_arming_and_a_normal_end_that_does_not_latch():
             be.emergency_stop()
         assert all(peer.locked(i) for i in range(ASM.n))
         with backend(19840) as be, pytest.raises(ArmingError, match=r"module 0 \(udp://127.0.0.1:19840\): its "
-                                                                     r"supervisor refused"):
+                                                                     r"supervisor is locked"):
             be.arm()  # a locked module cannot arm until rebooted
+    finally:
+        stop_peer(peer, th)
+
+
+def test_a_module_that_stops_flying_is_a_named_module_fault():
+    peer, th = start_peer(19964, 7483)
+    try:
+        with backend(19964) as be:
+            assert be.preflight().ok
+            be.arm()
+            hold(be, np.full(8, 0.3 * U_MAX), 0.2)
+            assert be.telemetry().module_faults == ("", "")
+            peer.firmware(1).supervisor.request_arming(False)  # its supervisor disarms (a spin-up timeout, ...)
+            hold(be, np.full(8, 0.3 * U_MAX), 0.2)
+            faults = be.telemetry().module_faults
+            assert faults[0] == "" and faults[1].startswith("disarmed by its supervisor")
+            be.disarm()
+        with backend(19964) as be:
+            assert be.preflight().ok
+            be.arm()
+            hold(be, np.full(8, 0.3 * U_MAX), 0.2)
+            peer.firmware(0).handle(bytes([wire.NULL_HEADER, 0xFE, 0xF0, 0x01]), time.monotonic())  # it reboots
+            hold(be, np.full(8, 0.3 * U_MAX), 0.2)
+            assert be.telemetry().module_faults[0] == "rebooted (its command counts started again)"
+            be.emergency_stop()
     finally:
         stop_peer(peer, th)
 
@@ -144,9 +172,9 @@ def test_preflight_names_silent_weak_and_stock_modules():
         with backend(19876, preflight_timeout=0.4) as be:
             assert be.preflight().issues == (
                 "module 0 (udp://127.0.0.1:19876) sends no motor-app state: flash firmware/crazyflie_app "
-                "(motorApp.version 1)",
+                "(motorApp.version 2)",
                 "module 1 (udp://127.0.0.1:19877) sends no motor-app state: flash firmware/crazyflie_app "
-                "(motorApp.version 1)")
+                "(motorApp.version 2)")
     finally:
         stop_peer(peer, th)
 

@@ -412,6 +412,71 @@ def f_mavlink_5_percent_loss(cli, tmp_path):
     assert res.phase == "done" and res.nominal, res.reason
 
 
+# -- a Crazyflie module that stops flying in flight -------------------------------------------------------------------
+@contextlib.contextmanager
+def _crazyflie_peer(tmp_path):
+    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
+                             str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                             "--mocap", "tcp/127.0.0.1:7633", "--params", str(ROOT / "firmware_params/crazyflie.toml")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(2.0)
+    try:
+        yield sitl_config(tmp_path, "crazyflie", PEER_PORT, "tcp/127.0.0.1:7633")
+    finally:
+        peer.terminate()
+        peer.wait(10)
+
+
+def _once_after(t_fault: float, action: Callable[[], None]):
+    """An ``on_period`` hook starting ``action`` on a thread of its own (it may block) once, at ``t_fault``."""
+    import threading
+
+    started = []
+
+    def on_period(t):
+        if t > t_fault and not started:
+            started.append(threading.Thread(target=action, daemon=True))
+            started[0].start()
+    return on_period
+
+
+@fault("a Crazyflie module rebooted in flight (cflib's PowerSwitch on its link)",
+       "the module named, motors off (the V cannot fly on one module), exit 1")
+def f_module_rebooted_in_flight(cli, tmp_path):
+    from cflib.utils.power_switch import PowerSwitch
+
+    def reboot():
+        switch = PowerSwitch(f"udp://127.0.0.1:{PEER_PORT + 1}")
+        switch.reboot_to_fw()
+        switch.close()
+
+    with _crazyflie_peer(tmp_path) as cfg:
+        res = fly(cfg, duration=6.0, log_path=tmp_path / "reboot.mcap", on_period=_once_after(4.0, reboot))
+    assert res.phase == "emergency" and not res.nominal
+    assert res.reason.startswith("module 1 rebooted (its command counts started again)"), res.reason
+    assert res.reason.endswith("the other modules cannot hold the assembly")
+
+
+@fault("a second ground station commanding one Crazyflie module in flight",
+       "the module named, motors off, exit 1")
+def f_second_sender_in_flight(cli, tmp_path):
+    import socket
+
+    from groundstation.backends import crtp_wire as wire
+
+    def intrude():  # another sender's stream, its sequence numbers ahead of the flight's
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for k in range(200):
+                cmd = wire.MotorCommand((30000 + k) & 0xFFFF, True, wire.to_counts([0.5] * 4))
+                s.sendto(bytes([wire.APP_HEADER]) + cmd.pack(), ("127.0.0.1", PEER_PORT))
+                time.sleep(0.004)
+
+    with _crazyflie_peer(tmp_path) as cfg:
+        res = fly(cfg, duration=6.0, log_path=tmp_path / "intruder.mcap", on_period=_once_after(4.0, intrude))
+    assert res.phase == "emergency" and not res.nominal
+    assert res.reason.startswith("module 0 takes commands from another sender (it applies sequence "), res.reason
+
+
 @pytest.mark.parametrize("row", FAULTS, ids=[f.id for f in FAULTS])
 def test_fault(row: Fault, cli, tmp_path):
     row.run(cli, tmp_path)

@@ -70,8 +70,9 @@ class _Mailbox(ctypes.Structure):
 
 
 def test_the_simulated_modules_gate_commands_exactly_as_the_c_app(tmp_path):
-    """Random command streams (reordered, duplicated, late, across tick and sequence wrap, with locks) through the
-    compiled C and through sim.crazyflie_firmware.MotorApp: the same acceptances, counters and forces."""
+    """Random command streams (reordered, duplicated, late, across tick and sequence wrap, with locks and a
+    supervisor that cannot fly) through the compiled C and through sim.crazyflie_firmware.MotorApp: the same
+    acceptances, counters and forces."""
     lib_path = tmp_path / "libmotor.so"
     subprocess.run(["gcc", "-shared", "-fPIC", "-O1", f"-I{APP / 'src'}", "-o", str(lib_path),
                     str(APP / "src/motor_protocol.c")], check=True, capture_output=True)
@@ -80,7 +81,7 @@ def test_the_simulated_modules_gate_commands_exactly_as_the_c_app(tmp_path):
     lib.mp_mailbox_offer.argtypes = [ctypes.POINTER(_Mailbox), ctypes.POINTER(_Command), ctypes.c_uint32,
                                      ctypes.c_uint32]
     lib.mp_gate_forces.argtypes = [ctypes.POINTER(_Mailbox), ctypes.c_uint32, ctypes.c_uint32, ctypes.c_bool,
-                                   ctypes.POINTER(ctypes.c_float)]
+                                   ctypes.c_bool, ctypes.POINTER(ctypes.c_float)]
     rng = np.random.default_rng(7)
     for _ in range(20):
         box, py = _Mailbox(), MotorApp()
@@ -97,7 +98,8 @@ def test_the_simulated_modules_gate_commands_exactly_as_the_c_app(tmp_path):
             assert accepted == py.offer(wire.MotorCommand(seq, armed, counts), tick)
             assert (box.received, box.dropped) == (py.received, py.dropped)
             for later in (0, 99, 100):
-                locked = bool(rng.random() < 0.1)
+                locked, can_fly = bool(rng.random() < 0.1), bool(rng.random() < 0.9)
                 forces = (ctypes.c_float * 4)()
-                lib.mp_gate_forces(ctypes.byref(box), (tick + later) & 0xFFFFFFFF, 100, locked, forces)
-                np.testing.assert_allclose(list(forces), py.forces((tick + later) & 0xFFFFFFFF, locked), rtol=1e-6)
+                lib.mp_gate_forces(ctypes.byref(box), (tick + later) & 0xFFFFFFFF, 100, locked, can_fly, forces)
+                np.testing.assert_allclose(list(forces), py.forces((tick + later) & 0xFFFFFFFF, locked, can_fly),
+                                           rtol=1e-6)

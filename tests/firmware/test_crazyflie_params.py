@@ -55,10 +55,10 @@ def test_read_only_parameters_are_never_written():
     peer, th = start_peer(SimulatedCrazyflies, 19724, 7604)
     try:
         uri = "udp://127.0.0.1:19724"
-        checks = check_crazyflie(uri, 0, {"motorApp.version": 2}, apply=True)
-        assert issues(checks) == ["module 0 (udp://127.0.0.1:19724): motorApp.version is 1, must be 2 (read-only: "
+        checks = check_crazyflie(uri, 0, {"motorApp.version": 3}, apply=True)
+        assert issues(checks) == ["module 0 (udp://127.0.0.1:19724): motorApp.version is 2, must be 3 (read-only: "
                                   "flash the firmware that has it right)"]
-        assert not checks[0].written and peer.firmware(0).services.value("motorApp.version") == 1
+        assert not checks[0].written and peer.firmware(0).services.value("motorApp.version") == 2
     finally:
         stop_peer(peer, th)
 
@@ -68,7 +68,7 @@ def test_stock_firmware_is_named():
     try:
         checks = check_crazyflie("udp://127.0.0.1:19726", 0, WANTED)
         assert issues(checks) == [
-            "module 0 (udp://127.0.0.1:19726): motorApp.version is not in the module's parameters, must be 1",
+            "module 0 (udp://127.0.0.1:19726): motorApp.version is not in the module's parameters, must be 2",
             "module 0 (udp://127.0.0.1:19726): supervisor.tmblChckEn is 1, must be 0",
             "module 0 (udp://127.0.0.1:19726): stabilizer.controller is 1, must be 6"]
     finally:
@@ -80,3 +80,24 @@ def test_silent_module_is_named_once():
     assert all(c.actual is None and c.unreachable for c in checks)
     assert issues(checks) == ["module 0 (udp://127.0.0.1:19729) does not answer: Error communicating with the "
                               "Crazyflie"]
+
+
+def test_a_right_value_only_in_ram_is_named_and_stored_by_apply():
+    """tmblChckEn = 0 set by hand but never stored reads right, and the reboot an emergency stop requires brings
+    tumble detection back: the check names it (from the module's stored state), --apply stores it."""
+    peer, th = start_peer(SimulatedCrazyflies, 19728, 7619)
+    try:
+        uri = "udp://127.0.0.1:19728"
+        peer.firmware(0).services.set("supervisor.tmblChckEn", 0)  # RAM only
+        assert issues(check_crazyflie(uri, 0, WANTED)) == [
+            "module 0 (udp://127.0.0.1:19728): supervisor.tmblChckEn is right in RAM but not stored: a reboot "
+            "brings the stock value back, must be 0"]
+        checks = check_crazyflie(uri, 0, WANTED, apply=True)
+        assert issues(checks) == []
+        assert [(c.name, c.written, c.stored) for c in checks if c.stored] == [("supervisor.tmblChckEn", False, True)]
+        assert peer.firmware(0).services.stored == {"supervisor.tmblChckEn": 0}
+        reboot(peer, 0, uri)
+        assert peer.firmware(0).services.value("supervisor.tmblChckEn") == 0
+        assert issues(check_crazyflie(uri, 0, WANTED)) == []
+    finally:
+        stop_peer(peer, th)

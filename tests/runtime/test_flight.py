@@ -57,3 +57,49 @@ def test_stale_mocap_with_stop_policy():
         flight = Flight(asm, plan, be, Stale(be), policy=FailsafePolicy(on_mocap_stale="stop"))
         flight.run(SimClock(be), 250.0)
     assert flight.phase == "emergency" and "mocap stale" in flight.reason
+
+
+class ModuleStops(PyBulletBackend):
+    """Module ``k``'s firmware stops flying it at ``t_fault`` (disarmed by its supervisor): its rotors get nothing
+    and the backend names it in ``module_faults``, as the Crazyflie backend does from the module's state."""
+
+    def __init__(self, asm, k, t_fault):
+        super().__init__(asm)
+        self._k, self._t_fault = k, t_fault
+
+    def _stopped(self):
+        return self.time >= self._t_fault
+
+    def send(self, u):
+        u = np.array(u, dtype=float)
+        if self._stopped():
+            u[4 * self._k:4 * self._k + 4] = 0.0
+        super().send(u)
+
+    def isolate(self, modules):
+        return list(modules) == [self._k]  # its rotors get nothing from the fault on (send)
+
+    def telemetry(self):
+        tel = super().telemetry()
+        faults = tuple("disarmed by its supervisor" if i == self._k and self._stopped() else ""
+                       for i in range(self._asm_n))
+        return type(tel)(**{**tel.__dict__, "module_faults": faults})
+
+
+@pytest.mark.parametrize("assembly, k, phase, reason", [
+    ("toy_v2.json", 1, "emergency", "module 1 disarmed by its supervisor: the other modules cannot hold the assembly"),
+    ("random10_seed0_n30.json", 7, "done", "module 7 disarmed by its supervisor: landing on the other modules"),
+])
+def test_a_module_fault_lands_on_the_rest_or_stops(assembly, k, phase, reason):
+    asm, _ = load_assembly(ROOT / "configs/assemblies" / assembly)
+    with ModuleStops(asm, k, 3.0) as be:
+        be._asm_n = asm.n
+        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
+        flight = Flight(asm, plan, be, PhysicsPoseSource(be))
+        tilts = []
+        flight.before_period = lambda t: tilts.append(np.degrees(np.arccos(min(be.true_state().rotation[2, 2], 1.0))))
+        flight.run(SimClock(be), 250.0)
+        assert flight.phase == phase and flight.reason == reason
+        if phase == "done":  # landed on the other 29 modules: upright, module 7 given nothing after the fault
+            assert max(tilts) < 15.0
+            assert np.all(flight.model.allocation[:, 4 * k:4 * k + 4] == 0.0)

@@ -4,11 +4,16 @@
  *
  * Two tasks touch the shared state:
  *  - the app task (appMain -> motorAppStep) blocks on the app channel, keeps only the newest command (a 1-deep
- *    mailbox, latest wins), feeds the commander watchdog with one setpoint per accepted command, and streams the
- *    module's state about every 10 ms with the non-blocking send;
+ *    mailbox, latest wins), feeds the commander watchdog with one setpoint per accepted command, and answers each
+ *    batch of received commands with one state report (non-blocking send);
  *  - the stabilizer task calls controllerOutOfTree() at 1 kHz, which outputs the newest command as normalized
- *    forces, or zero unless it is armed, fresh and the supervisor is not locked.
+ *    forces, or zero unless the supervisor can fly and the command is armed and fresh.
  * The pure rules live in motor_protocol.c; this file only moves data between them and the firmware.
+ *
+ * Why one state per batch and never unprompted: the downlink rides on the radio's acknowledgements behind a
+ * 1-deep TX queue and a 200-packet CRTP FIFO. An app that streams with no ground station connected fills that
+ * FIFO in about 2 s, and the next ground station to connect reads seconds-old states first. Answering commands
+ * keeps the number of states in flight at most the number of commands in flight.
  */
 #include <string.h>
 
@@ -18,6 +23,7 @@
 #include "commander.h"
 #include "controller.h"
 #include "log.h"
+#include "motors.h"
 #include "param.h"
 #include "pm.h"
 #include "supervisor.h"
@@ -33,8 +39,7 @@
 
 static mp_mailbox_t mailbox;      /* app task writes, stabilizer task reads: under a critical section */
 static float gyroRad[3];          /* stabilizer task writes, app task reads: under a critical section */
-static uint16_t appliedCounts[4]; /* idem */
-static uint32_t lastStateTick;
+static uint16_t motorRatios[4];   /* idem: what reaches the motors after the power distribution */
 
 /* Parameters and log variables (see the PARAM/LOG groups at the end). */
 static uint8_t protocolVersion = MP_PROTOCOL_VERSION;
@@ -47,8 +52,7 @@ static uint32_t logOverflows;
 void motorAppInit(void) {
   mp_mailbox_init(&mailbox);
   memset(gyroRad, 0, sizeof gyroRad);
-  memset(appliedCounts, 0, sizeof appliedCounts);
-  lastStateTick = xTaskGetTickCount();
+  memset(motorRatios, 0, sizeof motorRatios);
   logReceived = 0;
   logDropped = 0;
   logOverflows = 0;
@@ -84,13 +88,16 @@ static void sendState(void) {
   taskENTER_CRITICAL();
   const mp_mailbox_t box = mailbox;
   memcpy(state.gyro, gyroRad, sizeof state.gyro);
-  memcpy(state.counts, appliedCounts, sizeof state.counts);
+  memcpy(state.counts, motorRatios, sizeof state.counts);
   taskEXIT_CRITICAL();
   const uint32_t now = xTaskGetTickCount();
   const bool fresh = box.has_command && mp_ticks_since(now, box.accepted_tick) < M2T(commandTimeoutMs);
+  /* Supervisor queries from the app task: each reads (supervisorCanFly also rewrites) a flag of the stabilizer's
+   * supervisor state; a state that is one step old is all a report needs. */
   state.flags = (uint8_t)((box.has_command && box.latest.armed ? MP_STATE_ARMED : 0u) |
                           (supervisorIsLocked() ? MP_STATE_LOCKED : 0u) |
-                          (supervisorIsArmed() ? MP_STATE_SUPERVISOR_ARMED : 0u) | (fresh ? MP_STATE_FRESH : 0u));
+                          (supervisorIsArmed() ? MP_STATE_SUPERVISOR_ARMED : 0u) | (fresh ? MP_STATE_FRESH : 0u) |
+                          (supervisorCanFly() ? MP_STATE_CAN_FLY : 0u) | (supervisorIsFlying() ? MP_STATE_FLYING : 0u));
   state.sequence = box.latest.sequence;
   const float volts = pmGetBatteryVoltage();
   state.battery_mv = volts <= 0.0f ? 0u : volts >= 65.0f ? 65000u : (uint16_t)(volts * 1000.0f + 0.5f);
@@ -100,19 +107,20 @@ static void sendState(void) {
   logDropped = box.dropped;
   uint8_t buffer[MP_STATE_SIZE];
   const size_t size = mp_encode_state(&state, buffer, sizeof buffer);
-  /* Non-blocking: with no ground station listening the TX queue fills, and a blocking send would stop this
-   * task from taking commands. A state lost here is replaced 10 ms later. */
+  /* Non-blocking: a blocking send on a full TX queue would stop this task from taking commands. A state lost
+   * here is replaced by the answer to the next command. */
   appchannelSendDataPacket(buffer, size);
 }
 
 void motorAppStep(void) {
   uint8_t buffer[APPCHANNEL_MTU];
-  const uint32_t since = mp_ticks_since(xTaskGetTickCount(), lastStateTick);
-  const uint32_t period = M2T(MOTOR_APP_STATE_PERIOD_MS);
-  const int waitMs = since >= period ? 0 : (int)T2M(period - since);
-  /* Blocks until a packet or the next state report is due: never a busy loop, which would starve the
-   * priority-0 platform task that feeds the app channel (and with it every CRTP port, the stop included). */
-  size_t length = appchannelReceiveDataPacket(buffer, sizeof buffer, waitMs);
+  /* Blocks until a packet arrives: the app has nothing to do without one (the stabilizer task stops the motors
+   * on the command timeout by itself), and never busy-loops, which would starve the priority-0 platform task
+   * that feeds the app channel (and with it every CRTP port, the stop included). */
+  size_t length = appchannelReceiveDataPacket(buffer, sizeof buffer, APPCHANNEL_WAIT_FOREVER);
+  if (length == 0) {
+    return;
+  }
   while (length > 0) {
     handlePacket(buffer, length);
     length = appchannelReceiveDataPacket(buffer, sizeof buffer, 0);  /* drain: the newest wins */
@@ -123,11 +131,7 @@ void motorAppStep(void) {
     mp_mailbox_drop(&mailbox);
     taskEXIT_CRITICAL();
   }
-  const uint32_t now = xTaskGetTickCount();
-  if (mp_ticks_since(now, lastStateTick) >= period) {
-    lastStateTick = now;
-    sendState();
-  }
+  sendState();
 }
 
 void appMain(void) {
@@ -151,21 +155,21 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
   const mp_mailbox_t box = mailbox;
   taskEXIT_CRITICAL();
   float forces[4];
-  mp_gate_forces(&box, xTaskGetTickCount(), M2T(commandTimeoutMs), supervisorIsLocked(), forces);
+  mp_gate_forces(&box, xTaskGetTickCount(), M2T(commandTimeoutMs), supervisorIsLocked(), supervisorCanFly(),
+                 forces);
   control->controlMode = controlModeForce;
-  /* What reaches the motors: the stabilizer stops them anyway while the supervisor does not allow them to run
-   * (not armed, locked); the state report says so rather than echoing a command that is not applied. */
-  const bool running = supervisorAreMotorsAllowedToRun();
-  uint16_t counts[4];
+  /* The ratios of the previous step: the power distribution (battery compensation, dead zone, idle floor, the
+   * shared cap) runs after the controller, so what reaches the motors is known one 1 ms step later. */
+  uint16_t ratios[4];
   for (unsigned q = 0; q < 4u; q++) {
     control->normalizedForces[q] = forces[q];
-    counts[q] = running ? (uint16_t)(forces[q] * (float)MP_FULL_SCALE + 0.5f) : 0u;
+    ratios[q] = motorsGetRatio(q);
   }
   taskENTER_CRITICAL();
   gyroRad[0] = sensors->gyro.x * DEG_TO_RAD;
   gyroRad[1] = sensors->gyro.y * DEG_TO_RAD;
   gyroRad[2] = sensors->gyro.z * DEG_TO_RAD;
-  memcpy(appliedCounts, counts, sizeof appliedCounts);
+  memcpy(motorRatios, ratios, sizeof motorRatios);
   taskEXIT_CRITICAL();
 }
 

@@ -8,7 +8,6 @@
 #define MOTOR_APP_H_
 
 #define MOTOR_APP_COMMAND_TIMEOUT_MS 100 /* motors stop when no command arrived for this long */
-#define MOTOR_APP_STATE_PERIOD_MS 10     /* state report period (~100 Hz) */
 
 void motorAppInit(void);
 void motorAppStep(void);

@@ -110,10 +110,13 @@ bool mp_mailbox_offer(mp_mailbox_t *box, const mp_command_t *cmd, uint32_t now, 
 
 void mp_mailbox_drop(mp_mailbox_t *box) { box->dropped++; }
 
-mp_gate_t mp_gate_forces(const mp_mailbox_t *box, uint32_t now, uint32_t timeout, bool locked, float forces[4]) {
+mp_gate_t mp_gate_forces(const mp_mailbox_t *box, uint32_t now, uint32_t timeout, bool locked, bool can_fly,
+                         float forces[4]) {
   mp_gate_t gate = MP_GATE_RUN;
   if (locked) {
     gate = MP_GATE_LOCKED;
+  } else if (!can_fly) {
+    gate = MP_GATE_CANNOT_FLY;
   } else if (!box->has_command) {
     gate = MP_GATE_NO_COMMAND;
   } else if (mp_ticks_since(now, box->accepted_tick) >= timeout) {

@@ -17,7 +17,10 @@
 #include <stdint.h>
 
 /* Version of this contract, served read-only as the parameter motorApp.version. */
-#define MP_PROTOCOL_VERSION 1u
+#define MP_PROTOCOL_VERSION 2u
+/* 2: forces only while the supervisor can fly (flag MP_STATE_CAN_FLY); a state reports the motor ratios that
+ * reach the motors; one state per batch of received commands instead of an unprompted 100 Hz stream; flags
+ * can fly and flying. */
 
 /* First byte of every app-channel payload. */
 #define MP_KIND_COMMAND 0x01u   /* ground -> one module (unicast) */
@@ -39,6 +42,8 @@
 #define MP_STATE_LOCKED 0x02u           /* supervisor locked (emergency stop or watchdog): reboot required */
 #define MP_STATE_SUPERVISOR_ARMED 0x04u /* the firmware supervisor is armed */
 #define MP_STATE_FRESH 0x08u            /* the newest command is younger than the timeout */
+#define MP_STATE_CAN_FLY 0x10u          /* the supervisor lets flight setpoints through (supervisorCanFly) */
+#define MP_STATE_FLYING 0x20u           /* the supervisor's Flying or WarningLevelOut state (supervisorIsFlying) */
 
 #define MP_FULL_SCALE 65535u /* a command count of 65535 is normalized force 1.0 */
 #define MP_BROADCAST_FULL_SCALE 4095u
@@ -57,11 +62,11 @@ typedef enum {
   MP_NOT_FOR_US,  /* a broadcast that carries no slot of this module */
 } mp_status_t;
 
-/* What the module reports, unprompted, about 100 times a second. */
+/* What the module reports, once per batch of commands it receives (never unprompted: see motor_app.c). */
 typedef struct {
   uint8_t flags;      /* MP_STATE_* */
   uint16_t sequence;  /* sequence of the newest command accepted (echo: the ground station's latency probe) */
-  uint16_t counts[4]; /* normalized forces applied, 0..65535 */
+  uint16_t counts[4]; /* motor ratios that reach the motors (motorsGetRatio), 0..65535 */
   uint16_t battery_mv;
   float gyro[3];      /* body rate, rad/s, module frame */
   uint16_t received;  /* commands accepted (wraps) */
@@ -109,12 +114,16 @@ typedef enum {
   MP_GATE_STALE,       /* the newest command is `timeout` ticks old or older */
   MP_GATE_DISARMED,    /* the newest command does not carry the armed flag */
   MP_GATE_LOCKED,      /* the supervisor is locked */
+  MP_GATE_CANNOT_FLY,  /* the supervisor does not let flight setpoints through (not armed, arming, tumbled) */
 } mp_gate_t;
 
 /*
- * The normalized forces (0..1) the controller outputs at tick `now`: the newest command's, or zero unless it
- * exists, is armed, is fresh (younger than `timeout` ticks) and the supervisor is not locked.
+ * The normalized forces (0..1) the controller outputs at tick `now`: the newest command's, or zero unless the
+ * supervisor is not locked and can fly, and the command exists, is armed and is fresh (younger than `timeout`
+ * ticks). Zero while the supervisor cannot fly is what the stock controllers do: during the Arming state of a
+ * brushless build the motors must idle at the idle thrust for the RPM check, and any more fails it.
  */
-mp_gate_t mp_gate_forces(const mp_mailbox_t *box, uint32_t now, uint32_t timeout, bool locked, float forces[4]);
+mp_gate_t mp_gate_forces(const mp_mailbox_t *box, uint32_t now, uint32_t timeout, bool locked, bool can_fly,
+                         float forces[4]);
 
 #endif /* MOTOR_PROTOCOL_H_ */

@@ -9,6 +9,7 @@
 
 #include "app_channel.h"
 #include "commander.h"
+#include "motors.h"
 #include "pm.h"
 #include "supervisor.h"
 #include "task.h"
@@ -19,6 +20,7 @@ void fake_reset(void) {
   memset(&fake, 0, sizeof fake);
   fake.battery_v = 4.0f;
   fake.supervisor_armed = true;
+  fake.can_fly = true;
 }
 
 void fake_advance(uint32_t ticks) { fake.tick += ticks; }
@@ -107,6 +109,10 @@ bool supervisorIsLocked(void) { return fake.locked; }
 
 bool supervisorIsArmed(void) { return fake.supervisor_armed; }
 
-bool supervisorAreMotorsAllowedToRun(void) { return fake.supervisor_armed && !fake.locked; }
+bool supervisorCanFly(void) { return fake.can_fly && !fake.locked; }
+
+bool supervisorIsFlying(void) { return fake.flying; }
+
+uint16_t motorsGetRatio(uint32_t id) { return id < 4u ? fake.ratios[id] : 0u; }
 
 float pmGetBatteryVoltage(void) { return fake.battery_v; }

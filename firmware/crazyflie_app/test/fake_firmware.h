@@ -41,6 +41,9 @@ typedef struct {
   int last_priority;
   bool locked;
   bool supervisor_armed;
+  bool can_fly;
+  bool flying;
+  uint16_t ratios[4]; /* what motorsGetRatio returns: the power distribution's output */
   float battery_v;
 } fake_firmware_t;
 

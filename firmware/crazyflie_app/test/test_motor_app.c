@@ -166,21 +166,24 @@ static void test_gate(void) {
   mp_mailbox_t box;
   mp_mailbox_init(&box);
   float f[4] = {9, 9, 9, 9};
-  CHECK_EQ_INT(mp_gate_forces(&box, 0, 100, false, f), MP_GATE_NO_COMMAND);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0, 100, false, true, f), MP_GATE_NO_COMMAND);
   CHECK(f[0] == 0.0f && f[3] == 0.0f);
   mp_command_t c = {.sequence = 1, .armed = true, .counts = {0, 65535, 32768, 13107}};
   mp_mailbox_offer(&box, &c, 0xFFFFFFF0u, 100); /* arrives just before the tick counter wraps */
-  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, false, f), MP_GATE_RUN); /* 32 ticks later */
+  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, false, true, f), MP_GATE_RUN); /* 32 ticks later */
   CHECK(f[0] == 0.0f && f[1] == 1.0f && fabsf(f[2] - 0.5f) < 1e-4f && fabsf(f[3] - 0.2f) < 1e-6f);
-  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, true, f), MP_GATE_LOCKED);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, true, true, f), MP_GATE_LOCKED);
   CHECK(f[1] == 0.0f);
-  CHECK_EQ_INT(mp_gate_forces(&box, 0xFFFFFFF0u + 99u, 100, false, f), MP_GATE_RUN);
-  CHECK_EQ_INT(mp_gate_forces(&box, 0xFFFFFFF0u + 100u, 100, false, f), MP_GATE_STALE);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, false, false, f), MP_GATE_CANNOT_FLY); /* arming */
+  CHECK(f[1] == 0.0f);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0x00000010u, 100, true, false, f), MP_GATE_LOCKED); /* locked names first */
+  CHECK_EQ_INT(mp_gate_forces(&box, 0xFFFFFFF0u + 99u, 100, false, true, f), MP_GATE_RUN);
+  CHECK_EQ_INT(mp_gate_forces(&box, 0xFFFFFFF0u + 100u, 100, false, true, f), MP_GATE_STALE);
   CHECK(f[1] == 0.0f);
   c.sequence = 2;
   c.armed = false;
   mp_mailbox_offer(&box, &c, 500, 100);
-  CHECK_EQ_INT(mp_gate_forces(&box, 510, 100, false, f), MP_GATE_DISARMED);
+  CHECK_EQ_INT(mp_gate_forces(&box, 510, 100, false, true, f), MP_GATE_DISARMED);
   CHECK(f[1] == 0.0f);
 }
 
@@ -236,68 +239,79 @@ static void test_zero_unless_armed_fresh_and_unlocked(void) {
   CHECK(control.normalizedForces[0] == 0.0f);
 }
 
-static void test_state_stream_unprompted(void) {
+static void test_state_answers_commands_only(void) {
   fake_reset();
   motorAppInit();
   fake.battery_v = 3.987f;
   for (int i = 0; i < 20; i++) {
-    motorAppStep(); /* nothing arrives: each step waits for the next report and sends it */
+    motorAppStep(); /* nothing arrives: nothing is sent (no backlog for the next ground station to read) */
   }
-  CHECK_EQ_INT(fake.forever_waits, 0);
-  CHECK(fake.max_wait_ms <= MOTOR_APP_STATE_PERIOD_MS);
-  CHECK(fake.tx_count >= 19);
-  CHECK(fake.tick >= 190 && fake.tick <= 210); /* ~100 Hz: one report per 10 ms */
+  CHECK_EQ_INT(fake.tx_count, 0);
+  CHECK_EQ_INT(fake.forever_waits, 20); /* blocked, never a timed busy loop */
+
+  push_command(76, false, 0);
+  motorAppStep();
+  CHECK_EQ_INT(fake.tx_count, 1); /* one command, one state */
   const fake_packet_t *p = fake_last_tx();
   CHECK(p != NULL && p->size == MP_STATE_SIZE && p->data[0] == MP_KIND_STATE);
-  CHECK_EQ_INT(p->data[1], MP_STATE_SUPERVISOR_ARMED); /* no command: not armed, not fresh */
+  CHECK_EQ_INT(p->data[1], MP_STATE_SUPERVISOR_ARMED | MP_STATE_FRESH | MP_STATE_CAN_FLY); /* not armed */
   CHECK_EQ_INT(p->data[12] | (p->data[13] << 8), 3987);
 
   push_command(77, true, 65535);
+  push_command(78, true, 65535);
+  push_command(79, true, 32768);
   motorAppStep();
+  CHECK_EQ_INT(fake.tx_count, 2); /* one state per batch */
   control_t control;
+  fake.flying = true;
+  fake.ratios[0] = 36507; /* the power distribution compensated the battery: more than the 32768 commanded */
+  fake.ratios[3] = 7000;
   run_controller(&control, 180.0f); /* 180 deg/s about x */
-  fake_advance(MOTOR_APP_STATE_PERIOD_MS);
+  push_command(80, true, 32768);
   motorAppStep();
   p = fake_last_tx();
-  CHECK_EQ_INT(p->data[1], MP_STATE_ARMED | MP_STATE_SUPERVISOR_ARMED | MP_STATE_FRESH);
-  CHECK_EQ_INT(p->data[2] | (p->data[3] << 8), 77);                  /* sequence echo */
-  CHECK_EQ_INT(p->data[4] | (p->data[5] << 8), 65535);               /* applied */
+  CHECK_EQ_INT(p->data[1],
+               MP_STATE_ARMED | MP_STATE_SUPERVISOR_ARMED | MP_STATE_FRESH | MP_STATE_CAN_FLY | MP_STATE_FLYING);
+  CHECK_EQ_INT(p->data[2] | (p->data[3] << 8), 80);                  /* sequence echo */
+  CHECK_EQ_INT(p->data[4] | (p->data[5] << 8), 36507);               /* the motor ratio, not the command */
+  CHECK_EQ_INT(p->data[10] | (p->data[11] << 8), 7000);
   float gx, gy;
   memcpy(&gx, p->data + 14, 4);
   memcpy(&gy, p->data + 18, 4);
   CHECK(fabsf(gx - 3.14159265f) < 1e-5f && fabsf(gy + 6.2831853f) < 1e-5f); /* deg/s -> rad/s */
-  CHECK_EQ_INT(p->data[26] | (p->data[27] << 8), 1);                 /* received */
+  CHECK_EQ_INT(p->data[26] | (p->data[27] << 8), 5);                 /* received */
 
-  fake.supervisor_armed = false; /* a platform that needs arming, not armed: the stabilizer stops the motors */
+  fake.can_fly = false; /* arming (brushless RPM check), or disarmed: the controller outputs nothing */
+  fake.ratios[0] = 0;
   run_controller(&control, 0.0f);
-  CHECK(control.normalizedForces[0] == 1.0f); /* the command still reaches the controller output ... */
-  fake_advance(MOTOR_APP_STATE_PERIOD_MS);
+  CHECK(control.normalizedForces[0] == 0.0f && control.normalizedForces[2] == 0.0f);
+  push_command(81, true, 32768);
   motorAppStep();
   p = fake_last_tx();
-  CHECK_EQ_INT(p->data[4] | (p->data[5] << 8), 0); /* ... but the report says nothing is applied */
-  CHECK_EQ_INT(p->data[1] & MP_STATE_SUPERVISOR_ARMED, 0);
+  CHECK_EQ_INT(p->data[1] & MP_STATE_CAN_FLY, 0);
+  CHECK_EQ_INT(p->data[4] | (p->data[5] << 8), 0);
 }
 
 static void test_send_never_blocks_and_overflow_counts(void) {
   fake_reset();
   motorAppInit();
-  fake.tx_full = true; /* nobody listening: the TX queue is full */
+  fake.tx_full = true; /* the ground station does not read: the TX queue is full */
   for (int i = 0; i < 5; i++) {
+    push_command((uint16_t)(i + 1), false, 0);
     motorAppStep();
   }
-  CHECK(fake.tx_failed >= 4);
+  CHECK_EQ_INT(fake.tx_failed, 5);
+  CHECK_EQ_INT(fake.setpoints, 5); /* commands are still taken */
   fake.tx_full = false;
   for (int i = 0; i < FAKE_RX_QUEUE + 3; i++) {
     uint8_t buf[MP_COMMAND_SIZE];
-    command(buf, (uint16_t)(i + 1), true, 100, 100, 100, 100);
+    command(buf, (uint16_t)(i + 6), true, 100, 100, 100, 100);
     fake_push(buf, sizeof buf); /* the last three do not fit */
   }
   motorAppStep();
-  fake_advance(MOTOR_APP_STATE_PERIOD_MS);
-  motorAppStep();
   const fake_packet_t *p = fake_last_tx();
-  CHECK_EQ_INT(p->data[26] | (p->data[27] << 8), FAKE_RX_QUEUE); /* received */
-  CHECK_EQ_INT(p->data[28] | (p->data[29] << 8), 1);             /* one overflow event */
+  CHECK_EQ_INT(p->data[26] | (p->data[27] << 8), 5 + FAKE_RX_QUEUE); /* received */
+  CHECK_EQ_INT(p->data[28] | (p->data[29] << 8), 1);                 /* one overflow event */
 }
 
 static void test_params_and_logs(void) {
@@ -326,7 +340,7 @@ int main(void) {
   test_gate();
   test_commander_once_per_valid_packet();
   test_zero_unless_armed_fresh_and_unlocked();
-  test_state_stream_unprompted();
+  test_state_answers_commands_only();
   test_send_never_blocks_and_overflow_counts();
   test_params_and_logs();
   printf("%d checks, %d failed\n", check_count, check_failures);

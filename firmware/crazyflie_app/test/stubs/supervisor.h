@@ -4,5 +4,6 @@
 #include <stdbool.h>
 bool supervisorIsLocked(void);
 bool supervisorIsArmed(void);
-bool supervisorAreMotorsAllowedToRun(void);
+bool supervisorCanFly(void);
+bool supervisorIsFlying(void);
 #endif

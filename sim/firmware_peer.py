@@ -1,0 +1,189 @@
+"""Real Crazyflie firmware in the loop: one ``cf_sitl`` process per module behind the same UDP links as
+:mod:`sim.crazyflie_peer`, with the physics from our PyBullet world.
+
+``firmware/crazyflie_sitl`` builds crazyflie-firmware (a user's checkout, 2026.08) natively with the motor app; each
+process serves CRTP on ``port + i`` exactly as a simulated module does, so the ground station flies it with the same
+Crazyflie backend and cflib. Per physics step (1 kHz, the firmware's IMU rate) each process gets one sensor datagram
+(``firmware/crazyflie_sitl/WIRE.md``): the specific force and body rate in its module's own frame (rotated by its
+mount in the assembly, so the tumble check behaves as on hardware), the battery, and its motors' speeds; it answers
+with the motor ratios its power distribution set, which become rotor thrust through the platform's motor model (the
+assembly's ``motor_command``). A process that dies is a lost module (its link goes silent, its rotors stop); one
+that exits for a reboot (cflib's ``PowerSwitch``, exit status 3) is started again with its parameter file, so stored
+parameters survive as on hardware.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import struct
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sim.module_peer import ModulePeer
+
+SENSOR = struct.Struct("<4sId3f3ff4H")
+MOTOR = struct.Struct("<4sII4HB3x")
+INFO_CAN_FLY, INFO_LOCKED = 0x08, 0x40
+"""Bits of ``supervisorGetInfoBitfield`` in the motor datagram."""
+FIRMWARE_PHYSICS_HZ = 1000.0
+"""The firmware's IMU rate: one sensor datagram per physics step releases one stabilizer step."""
+REBOOT_STATUS = 3
+READY_TIMEOUT_S = 10.0
+
+
+class _Process:
+    def __init__(self, binary: Path, crtp_port: int, params: Path, log: Path) -> None:
+        self.sensor_port = _free_port()
+        self.motor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.motor.bind(("127.0.0.1", 0))
+        self.motor.setblocking(False)
+        self.cmd = [str(binary), "--crtp-port", str(crtp_port), "--sensor-port", str(self.sensor_port),
+                    "--motor-addr", f"127.0.0.1:{self.motor.getsockname()[1]}", "--params", str(params)]
+        self.log = log
+        self.ratios = np.zeros(4)
+        self.info = 0
+        self.heard = False
+        self.boots = 0
+        self.proc: subprocess.Popen | None = None
+        self.start()
+
+    def start(self) -> None:
+        self.boots += 1
+        self.heard = False
+        self.ratios = np.zeros(4)
+        with open(self.log, "a") as out:
+            self.proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT)
+
+    def receive(self) -> None:
+        while True:
+            try:
+                data = self.motor.recv(64)
+            except (BlockingIOError, InterruptedError):
+                return
+            if len(data) == MOTOR.size and data[:4] == b"CFMO":
+                *_, r0, r1, r2, r3, info = MOTOR.unpack(data)
+                self.ratios = np.array([r0, r1, r2, r3]) / 65535.0
+                self.info, self.heard = info, True
+
+    def end(self) -> None:
+        """Stop the process (SIGTERM, then SIGKILL after 2 s)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def stop(self) -> None:
+        self.end()
+        self.motor.close()
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class FirmwareCrazyflies(ModulePeer):
+    """Crazyflie modules running the real firmware (``binary``: a ``cf_sitl`` built for the peer's platform)."""
+
+    def __init__(self, assembly, config=None, binary: str | Path = "", state_dir: str | Path | None = None) -> None:
+        super().__init__(assembly, config)
+        self.binary = Path(binary)
+        self._tmp = None if state_dir is not None else tempfile.TemporaryDirectory(prefix="cf_sitl-")
+        self.state_dir = Path(state_dir if state_dir is not None else self._tmp.name)
+        """Where each module keeps its stored parameters (``m<i>.params``) and its console log (``m<i>.log``)."""
+        self._tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._seq = 0
+
+    def _open_links(self) -> None:
+        if not self.binary.is_file():
+            raise ValueError(f"no firmware-in-the-loop binary at {self.binary}: build firmware/crazyflie_sitl "
+                             f"(make CRAZYFLIE_BASE=<crazyflie-firmware checkout> PLATFORM=<platform>)")
+        if self.assembly.params.motor_command is None:
+            raise ValueError("the assembly's module_params has no motor_command: the motors need their platform's "
+                             "thrust model")
+        self.state_dir.mkdir(parents=True, exist_ok=True)
+        c = self.config
+        self._procs = []  # filled one by one: closing stops the ones already started if a later one fails
+        for i in range(self.assembly.n):
+            self._procs.append(_Process(self.binary, c.port + i, self.state_dir / f"m{i}.params",
+                                        self.state_dir / f"m{i}.log"))
+        self._wait_ready()
+
+    def _wait_ready(self) -> None:
+        """Feed level, at-rest sensors until every process sent its first motor datagram."""
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        rest = np.array([0.0, 0.0, 1.0])
+        while not all(p.heard for p in self._procs):
+            if time.monotonic() > deadline or any(p.proc.poll() is not None for p in self._procs):
+                dead = [i for i, p in enumerate(self._procs) if not p.heard]
+                raise ValueError(f"firmware modules {dead} did not start (see {self.state_dir}/m<i>.log)")
+            for i, p in enumerate(self._procs):
+                self._send_sensors(p, self.module_frame(i, rest), np.zeros(3), np.zeros(4))
+                p.receive()
+            time.sleep(0.001)
+
+    def _close_links(self) -> None:
+        for p in getattr(self, "_procs", []):
+            p.stop()
+        self._procs = []
+        self._tx.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def _send_sensors(self, p: _Process, acc_g: np.ndarray, gyro_rad: np.ndarray, rpm: np.ndarray) -> None:
+        self._seq += 1
+        gyro = np.degrees(gyro_rad)
+        rpm16 = np.clip(np.rint(rpm), 0, 65535).astype(int)
+        packet = SENSOR.pack(b"CFSI", self._seq & 0xFFFFFFFF, self.sim.time, *map(float, acc_g),
+                             *map(float, gyro), float(self.config.battery_v), *map(int, rpm16))
+        with contextlib.suppress(OSError):
+            self._tx.sendto(packet, ("127.0.0.1", p.sensor_port))
+
+    def _serve(self, now: float) -> None:
+        specific_force = self.specific_force()
+        omega = self.sim.telemetry().gyro
+        for i, p in enumerate(self._procs):
+            if p.proc.poll() is not None:
+                if p.proc.returncode == REBOOT_STATUS:
+                    p.start()  # a reboot: the same links, the stored parameters
+                p.info = 0  # a dead process: its link is silent, its motors stop, nothing about it is known
+                continue
+            self._send_sensors(p, self.module_frame(i, specific_force), self.module_frame(i, omega),
+                               self.module_rpm(i))
+            p.receive()
+
+    def _rotor_inputs(self, now: float) -> np.ndarray:
+        params = self.assembly.params
+        ratios = np.array([p.ratios if p.proc.poll() is None else np.zeros(4) for p in self._procs])
+        thrust = params.motor_command.thrust(ratios, np.full(len(self._procs), self.config.battery_v))
+        return (thrust / params.c_f).reshape(-1)
+
+    def armed(self, i: int) -> bool:
+        return bool(self._procs[i].info & INFO_CAN_FLY)
+
+    def locked(self, i: int) -> bool:
+        return bool(self._procs[i].info & INFO_LOCKED)
+
+    def kill(self, i: int) -> None:
+        """Kill module i's firmware process (a module lost in flight)."""
+        self._procs[i].proc.kill()
+
+    def restart(self) -> None:
+        """Restart every firmware process (a power cycle of every module); stored parameters are kept."""
+        for p in self._procs:
+            p.end()
+            p.start()
+        self._wait_ready()
+
+    def ratios(self, i: int) -> np.ndarray:
+        """Module i's newest motor ratios (0..1)."""
+        return self._procs[i].ratios.copy()
