@@ -38,7 +38,7 @@ def validate(schema: type[T], data: object, *, path: str | None = None, prefix: 
         err = exc.errors()[0]
         loc = ".".join(str(p) for p in _key_path(data, err["loc"]))
         key = ".".join(k for k in (prefix, loc) if k) or None
-        msg = err["msg"]
+        msg = err["msg"].removeprefix("Value error, ")  # our validators' own words, without pydantic's label
         if err["type"] == "unexpected_keyword_argument" or err["type"] == "extra_forbidden":
             msg = "unknown key"
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""

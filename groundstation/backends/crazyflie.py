@@ -341,6 +341,13 @@ class CrazyflieBackend(BackendBase):
         supervisor disarms after 30 s armed without flying."""
         if not self._modules:
             raise ArmingError("not connected")
+        try:
+            self._arm()
+        except BaseException:  # refused, or interrupted half-way (Ctrl-C): no supervisor stays armed
+            self._request_disarm()
+            raise
+
+    def _arm(self) -> None:
         for m in self._modules:
             m.arm_reply = None
         pending = set(range(len(self._modules)))
@@ -382,7 +389,6 @@ class CrazyflieBackend(BackendBase):
                 why = "armed but its supervisor does not let it fly (motors not spinning up through the RPM check?)"
             refused[i] = f"{why} within {self.settings.arm_timeout:g} s"
         if refused:
-            self._request_disarm()
             raise ArmingError("; ".join(f"module {i} ({self.uris[i]}): {why}" for i, why in sorted(refused.items())))
         self._armed = True
         self._disarm_requested = False

@@ -8,10 +8,11 @@ pymavlink connection per PX4 module: serial, UDP, or ``groundstation sim-peer --
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Literal
 
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 from pydantic.dataclasses import dataclass
 
 from groundstation import config
@@ -45,11 +46,24 @@ class TlsSection:
         return self
 
 
+_KEY_CHUNK = re.compile(r"[^/*$?#\s]+")
+"""One concrete Zenoh key chunk: not empty, no separator, wildcard or forbidden character."""
+
+
+def _concrete_key(value: str, chunks: str) -> str:
+    if not all(_KEY_CHUNK.fullmatch(c) for c in value.split("/")) or (chunks == "one" and "/" in value):
+        what = "one key chunk" if chunks == "one" else "key chunks separated by '/'"
+        raise ValueError(f"must be {what}, concrete (not empty; no '*', '$', '?', '#' or spaces), not {value!r}")
+    return value
+
+
 @dataclass(frozen=True, config=_STRICT)
 class MocapSection:
     body: str = "assembly"
-    """Rigid body name; the pose key is ``<key_prefix>/<body>/pose``."""
+    """Rigid body name; the pose key is ``<key_prefix>/<body>/pose``: one concrete Zenoh key chunk (no ``/``, no
+    wildcard ``*`` or ``$*``, no ``?`` or ``#``): a wildcard would subscribe to every body's poses."""
     key_prefix: str = "mocap"
+    """Concrete chunks separated by ``/``, the same rules."""
     endpoint: str = "tcp/127.0.0.1:7448"
     """Zenoh endpoint (loopback by default; multicast scouting is always off)."""
     listen: bool = False
@@ -69,6 +83,16 @@ class MocapSection:
     """TLS on the mocap link (default: none, loopback)."""
     access_control: str | None = None
     """A JSON5 file holding Zenoh's ``access_control`` block (relative to this config)."""
+
+    @field_validator("body")
+    @classmethod
+    def _body_concrete(cls, value: str) -> str:
+        return _concrete_key(value, "one")
+
+    @field_validator("key_prefix")
+    @classmethod
+    def _prefix_concrete(cls, value: str) -> str:
+        return _concrete_key(value, "many")
 
     @model_validator(mode="after")
     def _secure_endpoint(self) -> MocapSection:

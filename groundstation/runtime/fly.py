@@ -266,9 +266,6 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         firmware_issues = _firmware_param_issues(p.cfg, p.base, p.src, p.log_file.parent)
         world = stack.enter_context(load(p.kind.world)(p.assembly, p.cfg, p.key, theirs, faults, activity,
                                                        p.security))
-        # Runs first on the way out: a flight that landed (or never armed) is disarmed already; anything else
-        # (an exception, Ctrl-C in preflight) gets the emergency stop.
-        stack.callback(lambda: None if ended_cleanly[0] else world.backend.emergency_stop())
         gs_session = open_session(listen=ours, connect=theirs, security=p.security)
         stack.callback(gs_session.close)
         sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed))
@@ -278,6 +275,10 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
                                      "assembly": json.dumps(assembly_record(p.assembly))}, activity=activity,
                         live_port=live_port)
         stack.callback(log.close)
+        # Registered last, so it runs first on the way out, before the log and Zenoh close: a flight that landed
+        # is disarmed already; armed modules on any other way out (an exception, Ctrl-C) get the emergency stop.
+        # Modules never armed (a refused preflight or arming) are not stopped: the stop latches until a reboot.
+        stack.callback(lambda: None if ended_cleanly[0] or not world.backend.armed else world.backend.emergency_stop())
         pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
 
         plan = _preflight(p, world, sub, pose, log, firmware_issues, to_log)

@@ -81,6 +81,9 @@ BAD_INPUTS = [
     ("figure8_beyond_geofence", {"size = 0.6": "size = 5.0"}, (), "leaves the flight volume"),
     ("geofence_below_take_off", {"geofence_lower = [-3.5, -3.5, -0.2]": "geofence_lower = [-3.5, -3.5, 0.5]"},
      (), "leaves the flight volume"),
+    ("mocap_body_wildcard", {'body = "assembly"': 'body = "*"'}, (), "mocap.body"),
+    ("mocap_body_empty", {'body = "assembly"': 'body = ""'}, (), "mocap.body"),
+    ("mocap_key_prefix_wildcard", {'key_prefix = "mocap"': 'key_prefix = "mocap/**"'}, (), "mocap.key_prefix"),
     ("negative_mocap_timeout", {"mocap_timeout_s = 0.25": "mocap_timeout_s = -1"}, (), "mocap_timeout_s"),
     ("three_links_for_two_modules", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:1", '
                                      '"udp://127.0.0.1:2", "udp://127.0.0.1:3"]'}, (), "backend.modules"),

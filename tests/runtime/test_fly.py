@@ -237,6 +237,7 @@ def test_preflight_refuses_modules_with_stock_parameters(tmp_path, kind, peer_cl
             fly(cfg, log_path=log)
         assert f"firmware parameter: {wrong} (fix with: groundstation params {cfg} --apply)" in str(err.value)
         assert not any(peer.armed(i) for i in range(2)) and peer.sim.telemetry().motors.max() == 0.0
+        assert not any(peer.locked(i) for i in range(2))  # never armed: no stop latched, no reboot needed
         counts, _, logs, _ = read_log(log)
         assert "/control" not in counts and any(b"firmware parameter" in data for _, data in logs)
     finally:
