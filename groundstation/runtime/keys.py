@@ -1,7 +1,8 @@
 """Operator keys during a flight: ``k`` stops the motors at once, ``l`` lands.
 
-Active only when stdin is a terminal; the terminal is put in cbreak mode (keys arrive without Enter, Ctrl-C still
-raises SIGINT) and always restored.
+Active only when stdin is a terminal (closed, absent or redirected stdin: the flight runs without keys); the
+terminal is put in cbreak mode (keys arrive without Enter, Ctrl-C still raises SIGINT) and always restored. A
+terminal that goes away (end of file, a read error) ends the reader, not the flight.
 """
 
 from __future__ import annotations
@@ -25,8 +26,14 @@ class KeyReader:
         self._thread: threading.Thread | None = None
         self._saved = None
 
+    def _interactive(self) -> bool:
+        try:
+            return self._stream is not None and self._stream.isatty()
+        except (ValueError, OSError):  # a closed stream
+            return False
+
     def __enter__(self) -> KeyReader:
-        if not self._stream.isatty():
+        if not self._interactive():
             return self
         import termios
         import tty
@@ -40,10 +47,16 @@ class KeyReader:
 
     def _run(self, fd: int) -> None:
         while not self._stop.is_set():
-            ready, _, _ = select.select([fd], [], [], 0.1)
-            if not ready:
-                continue
-            key = os.read(fd, 1).decode(errors="ignore")
+            try:
+                ready, _, _ = select.select([fd], [], [], 0.1)
+                if not ready:
+                    continue
+                data = os.read(fd, 1)
+            except OSError:
+                return  # the terminal went away
+            if not data:
+                return  # end of file: no more keys (and no busy loop on a readable EOF)
+            key = data.decode(errors="ignore")
             if key in KILL_KEYS:
                 self._requests.stop.set()
             elif key in LAND_KEYS:
@@ -54,6 +67,8 @@ class KeyReader:
         if self._thread is not None:
             self._thread.join(timeout=1.0)
         if self._saved is not None:
+            import contextlib
             import termios
 
-            termios.tcsetattr(self._stream.fileno(), termios.TCSADRAIN, self._saved)
+            with contextlib.suppress(OSError, ValueError, termios.error):  # the terminal may be gone (hang-up)
+                termios.tcsetattr(self._stream.fileno(), termios.TCSADRAIN, self._saved)

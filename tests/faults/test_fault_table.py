@@ -415,6 +415,16 @@ def f_mavlink_5_percent_loss(cli, tmp_path):
     assert res.phase == "done" and res.nominal, res.reason
 
 
+@fault("fly with stdin closed (started from a script, cron or a service)", "flies without the key reader, exit 0")
+def f_stdin_closed(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7634")
+    log = tmp_path / "no-stdin.mcap"
+    run = subprocess.run(["bash", "-c", 'exec <&- && exec "$0" -m groundstation fly "$1" --duration 1 --log "$2"',
+                          sys.executable, str(cfg), str(log)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    assert "/control" in read_log(log)[0]
+
+
 # -- a Crazyflie module that stops flying in flight -------------------------------------------------------------------
 @contextlib.contextmanager
 def _crazyflie_peer(tmp_path):
