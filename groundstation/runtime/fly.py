@@ -355,7 +355,8 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, requests: Requests, 
 
 
 def _install_signals(requests: Requests):
-    """First SIGINT/SIGTERM: land. Second: stop the motors. Returns a function restoring the old handlers."""
+    """First SIGINT/SIGTERM/SIGHUP: land. Second: stop the motors. Returns a function restoring the old handlers.
+    SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process, rotors on."""
     if threading.current_thread() is not threading.main_thread():
         return None
 
@@ -364,7 +365,7 @@ def _install_signals(requests: Requests):
             requests.stop.set()
         requests.land.set()
 
-    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
 
     def restore():
         for s, h in old.items():

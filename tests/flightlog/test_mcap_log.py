@@ -99,7 +99,8 @@ def test_sigkill_of_both_processes_leaves_a_recoverable_file(tmp_path):
     assert not counts["source_was_complete"] and counts["channels"] >= 2
 
 
-def test_sigterm_during_fly_lands_and_finalizes(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["sigterm", "sighup"])
+def test_sigterm_or_hangup_during_fly_lands_and_finalizes(tmp_path, sig):
     cfg = (ROOT / "configs/flights/toy_figure8_sim.toml").read_text()
     cfg = cfg.replace('assembly = "../assemblies/toy_v2.json"',
                       f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
@@ -110,7 +111,7 @@ def test_sigterm_during_fly_lands_and_finalizes(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "groundstation", "fly", str(flight), "--log", str(log), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     time.sleep(9.0)  # well into the flight
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)  # SIGHUP: an SSH drop or a closed terminal (it killed the process, rotors on)
     out, err = proc.communicate(timeout=60)
     summary = json.loads(out)
     assert summary["phase"] == "done" and "operator land" in summary["reason"], err
