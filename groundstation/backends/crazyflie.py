@@ -401,7 +401,8 @@ class CrazyflieBackend(BackendBase):
         u = applied_command(u, self._counts.size, self._armed, self.u_max)
         thrust = (self.module.c_f * u).reshape(-1, 4)
         fractions = self._map.fractions(thrust, self._battery)
-        fractions[sorted(self._isolated)] = 0.0
+        if self._isolated:  # only after a module fault: nothing on the normal per-period path
+            fractions[sorted(self._isolated)] = 0.0
         self._send_all(fractions, armed=self._armed)
 
     def isolate(self, modules) -> bool:
