@@ -15,6 +15,10 @@ from sim.module_peer import ModulePeer, PeerConfig
 ROOT = Path(__file__).resolve().parents[1]
 ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
 U_MAX = ASM.params.u_max
+UNTIMED_LINK = {"max_latency": 0.5}
+"""Crazyflie backend settings for tests that are not about the round-trip bound: the simulated modules are threads
+or processes of this loaded machine, and the shipped 14 ms bound measures their scheduling (CI once saw "14 ms >
+14 ms"). The bound itself is tested by the fault table's 30 ms rows."""
 
 
 def start_peer(peer_class: type[ModulePeer], port: int, mocap_port: int, assembly=ASM,

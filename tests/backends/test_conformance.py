@@ -9,13 +9,14 @@ import pytest
 
 from groundstation.assembly.assembly_file import load_assembly
 from groundstation.backends.base import Backend, SimulatedBackend
-from groundstation.backends.crazyflie import CrazyflieBackend
+from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
 from groundstation.backends.fake import FakeBackend
 from groundstation.backends.mavlink import MavlinkBackend
 from sim.crazyflie_peer import SimulatedCrazyflies
 from sim.mavlink_peer import SimulatedPx4
 from sim.module_peer import PeerConfig
 from sim.pybullet_backend import PyBulletBackend
+from tests.peers import UNTIMED_LINK
 
 ROOT = Path(__file__).resolve().parents[2]
 ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
@@ -52,7 +53,7 @@ def held(backend_class):
 
 def make_crazyflie():
     return held(CrazyflieBackend)([f"udp://127.0.0.1:{19874 + i}" for i in range(ASM.n)], ASM.params,
-                                  ASM.module_rotations)
+                                  ASM.module_rotations, CrazyflieSettings(**UNTIMED_LINK))
 
 
 def make_mavlink():

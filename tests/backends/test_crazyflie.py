@@ -12,7 +12,7 @@ from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
 from groundstation.errors import ArmingError, LinkError
 from sim.crazyflie_peer import SimulatedCrazyflies
 from tests import peers
-from tests.peers import ASM, U_MAX, hold, stop_peer
+from tests.peers import ASM, U_MAX, UNTIMED_LINK, hold, stop_peer
 
 
 def start_peer(port: int, mocap_port: int, **kw):
@@ -24,7 +24,8 @@ def uris(port: int) -> list[str]:
 
 
 def backend(port: int, **settings) -> CrazyflieBackend:
-    return CrazyflieBackend(uris(port), ASM.params, ASM.module_rotations, CrazyflieSettings(**settings))
+    return CrazyflieBackend(uris(port), ASM.params, ASM.module_rotations,
+                            CrazyflieSettings(**(UNTIMED_LINK | settings)))
 
 
 def test_wire_headers_match_cflib():

@@ -7,11 +7,11 @@ import time
 
 import numpy as np
 
-from groundstation.backends.crazyflie import CrazyflieBackend
+from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
 from groundstation.runtime.fly import fly
 from sim.crazyflie_peer import SimulatedCrazyflies
 from sim.crazyradio_emulator import emulated_crazyradios
-from tests.peers import ASM, U_MAX, hold, start_peer, stop_peer
+from tests.peers import ASM, U_MAX, UNTIMED_LINK, hold, start_peer, stop_peer
 from tests.runtime.test_fly import sitl_config
 
 RADIOS = ["radio://0/80/2M/E7E7E7E700", "radio://1/80/2M/E7E7E7E701"]
@@ -53,7 +53,8 @@ def test_one_module_per_dongle_at_the_control_rate():
     peer, th = start_peer(SimulatedCrazyflies, 19944, 7483)
     try:
         with emulated_crazyradios(19944) as radio:
-            with CrazyflieBackend(RADIOS, ASM.params, ASM.module_rotations) as be:
+            settings = CrazyflieSettings(**UNTIMED_LINK)
+            with CrazyflieBackend(RADIOS, ASM.params, ASM.module_rotations, settings) as be:
                 assert be.preflight().ok, be.preflight().issues
                 be.arm()
                 hold(be, np.full(8, 0.4 * U_MAX), 1.0)

@@ -16,7 +16,6 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,31 +24,12 @@ import pytest
 from groundstation.errors import PreflightError
 from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
+from tests.faults.table import Fault, fault, rows
 from tests.peers import ROOT
 from tests.runtime.test_fly import config_with, read_log, sitl_config
 
 PEER_PORT, RELAY_PORT = 19900, 19910
 HOSTILE = "tcp/127.0.0.1:7490"
-
-
-@dataclass(frozen=True)
-class Fault:
-    id: str
-    injected: str
-    """The fault, as injected."""
-    expected: str
-    """The defined outcome."""
-    run: Callable
-
-
-FAULTS: list[Fault] = []
-
-
-def fault(injected: str, expected: str):
-    def register(fn):
-        FAULTS.append(Fault(fn.__name__.removeprefix("f_").replace("_", "-"), injected, expected, fn))
-        return fn
-    return register
 
 
 # -- bad input: one line naming the key, exit 2, nothing armed ---------------------------------------------------
@@ -490,6 +470,6 @@ def f_second_sender_in_flight(cli, tmp_path):
     assert res.reason.startswith("module 0 takes commands from another sender (it applies sequence "), res.reason
 
 
-@pytest.mark.parametrize("row", FAULTS, ids=[f.id for f in FAULTS])
+@pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
 def test_fault(row: Fault, cli, tmp_path):
     row.run(cli, tmp_path)

@@ -22,7 +22,7 @@ from sim.crazyflie_peer import SimulatedCrazyflies
 from sim.firmware_peer import FIRMWARE_PHYSICS_HZ, FirmwareCrazyflies
 from sim.module_peer import PeerConfig
 from tests.firmware_sitl.conftest import ROOT, sitl_binary
-from tests.peers import hold
+from tests.peers import UNTIMED_LINK, hold
 
 KINDS = ["model", "firmware"]
 WANTED = load_param_file(ROOT / "firmware_params/crazyflie.toml")
@@ -62,7 +62,7 @@ class Modules:
 
     def backend(self, **settings) -> CrazyflieBackend:
         return CrazyflieBackend(self.uris, self.assembly.params, self.assembly.module_rotations,
-                                CrazyflieSettings(**settings))
+                                CrazyflieSettings(**(UNTIMED_LINK | settings)))
 
     def restart(self) -> None:
         """Power-cycle every module: only stored parameters survive."""
