@@ -1,7 +1,9 @@
-"""Loading TOML files into validated, frozen schemas; every error names the file and the key path."""
+"""Reading input files (TOML, JSON: text only, size-capped) into validated, frozen schemas; every error names the
+file and the key path."""
 
 from __future__ import annotations
 
+import json
 import tomllib
 from pathlib import Path
 from typing import TypeVar
@@ -13,18 +15,57 @@ from groundstation.errors import ConfigError
 T = TypeVar("T")
 
 
-def read_toml(path: str | Path) -> dict:
-    """Parse a TOML file; a missing file or a syntax error is a :class:`ConfigError` naming the file."""
+MAX_TEXT_BYTES = 4 * 2**20
+"""Largest text input read (flight, task, module and parameter TOML, assembly JSON), bytes. The largest shipped
+is an assembly of 60 modules, 0.14 MB; a file many times that size is not a configuration (a log, a disk image), and
+reading stops here, so a device that never ends (``/dev/zero``) costs one bounded read."""
+
+
+def read_text(path: str | Path) -> str:
+    """The text of an input file, read with a size cap: a file larger than :data:`MAX_TEXT_BYTES`, one holding a
+    NUL byte (a binary: an MCAP log, an executable, ``/dev/zero``) or not UTF-8 is a :class:`ConfigError` naming
+    the file, and never read whole."""
     p = Path(path)
     try:
         with p.open("rb") as fh:
-            return tomllib.load(fh)
+            data = fh.read(MAX_TEXT_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError("file not found", path=str(p)) from None
     except IsADirectoryError:
-        raise ConfigError("is a directory, expected a TOML file", path=str(p)) from None
+        raise ConfigError("is a directory, expected a text file", path=str(p)) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot be read: {exc.strerror or exc}", path=str(p)) from None
+    if b"\0" in data:
+        raise ConfigError("not a text file (it holds NUL bytes: a binary file?)", path=str(p))
+    if len(data) > MAX_TEXT_BYTES:
+        raise ConfigError(f"larger than {MAX_TEXT_BYTES // 2**20} MiB: not a configuration file", path=str(p))
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"not UTF-8 text (byte {exc.start})", path=str(p)) from None
+
+
+def read_toml(path: str | Path) -> dict:
+    """Parse a TOML file (read by :func:`read_text`); a syntax error is a :class:`ConfigError` naming the file."""
+    text = read_text(path)
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"invalid TOML: {exc}", path=str(p)) from None
+        raise ConfigError(f"invalid TOML: {exc}", path=str(path)) from None
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a finite number")
+
+
+def read_json(path: str | Path) -> object:
+    """Parse a JSON file (read by :func:`read_text`); a syntax error or a non-finite number (JSON has none, but
+    Python's parser takes ``NaN`` and ``Infinity``) is a :class:`ConfigError` naming the file."""
+    text = read_text(path)
+    try:
+        return json.loads(text, parse_constant=_no_constant)
+    except ValueError as exc:
+        raise ConfigError(f"invalid JSON: {exc}", path=str(path)) from None
 
 
 def validate(schema: type[T], data: object, *, path: str | None = None, prefix: str = "") -> T:

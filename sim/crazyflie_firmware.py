@@ -18,9 +18,10 @@ firmware run natively (``firmware/crazyflie_sitl``, ``tests/firmware_sitl``):
   flying hysteresis still on it is flying again at once and, left without commands, locks 2 s later (found on the
   real firmware; the ground station streams zeros until the hysteresis has run out).
 * The motor app (``motor_protocol.c``), mirrored line for line by :class:`MotorApp` and checked against the C
-  code in the tests: a 1-deep latest-wins mailbox, forces only while the supervisor can fly and the newest
-  command is armed and fresh (< 100 ms); one state per batch of received commands, never unprompted, reporting
-  the motor ratios.
+  code in the tests: one owner at a time (a claim, refused while another session's armed commands are fresh;
+  commands only with the owner's token), a 1-deep latest-wins mailbox, forces only while the supervisor can fly
+  and the newest command is armed and fresh (< 100 ms); one state per batch of received commands, never
+  unprompted, reporting the motor ratios; an identity report (owner, unique id, accelerometer) per claim.
 * The power distribution (battery compensation and its dead zone, the cap shared by four rotors, the idle floor)
   is the platform's :class:`~groundstation.assembly.motor_map.MotorCommandMap`.
 * The connection-setup and parameter services (:mod:`sim.crtp_services`), the platform version (CRTP protocol
@@ -77,9 +78,29 @@ class MotorApp:
         self.accepted_tick = 0
         self.received = 0
         self.dropped = 0
+        self.owner_session = 0
+        self.owner_token = 0
+        """0: nobody owns the module."""
 
     def _age(self, tick: int) -> int:
         return (tick - self.accepted_tick) & 0xFFFFFFFF
+
+    def claim(self, session: int, tick: int, timeout: int = COMMAND_TIMEOUT_TICKS) -> bool:
+        """``mp_owner_claim``: True if ``session`` owns the module afterwards."""
+        if session == 0:
+            return False
+        if self.owner_token and self.owner_session == session:
+            return True
+        if self.owner_token and self.latest is not None and self.latest.armed and self._age(tick) < timeout:
+            return False  # flying for its owner
+        self.owner_session = session
+        self.owner_token = self.owner_token % 255 + 1
+        self.latest = None
+        return True
+
+    def accepts(self, cmd: wire.MotorCommand) -> bool:
+        """``mp_owner_accepts``: the command carries the owner's token."""
+        return self.owner_token != 0 and cmd.token == self.owner_token
 
     def offer(self, cmd: wire.MotorCommand, tick: int, timeout: int = COMMAND_TIMEOUT_TICKS) -> bool:
         stale = self.latest is None or self._age(tick) >= timeout
@@ -267,8 +288,13 @@ class SimulatedCrazyflie:
     what reaches the motors; :meth:`step` advances the supervisor."""
 
     def __init__(self, build: FirmwareBuild, now: float, preset: tuple[tuple[str, float], ...] = (),
-                 motor_map: MotorCommandMap | None = None, battery_v: float = 4.0) -> None:
+                 motor_map: MotorCommandMap | None = None, battery_v: float = 4.0,
+                 uid: tuple[int, int, int] = (0x00370041, 0x3236510D, 0x38383432)) -> None:
         self.build = build
+        self.uid = uid
+        """The MCU's unique id (``cpu.id0..id2``)."""
+        self.acc_g = np.array([0.0, 0.0, 1.0])
+        """The accelerometer's newest sample, g, module frame (:meth:`step`)."""
         self.motor_map = motor_map or _stock_map(build.platform)
         if self.motor_map.platform != build.platform:
             raise ValueError(f"a {build.platform} build with the thrust map of a {self.motor_map.platform}")
@@ -302,9 +328,7 @@ class SimulatedCrazyflie:
         if not self.powered:
             return []
         if wire.same_port(head, wire.APP_HEADER):
-            if self.build.motor_app:
-                self._app_packet(body, now)
-            return []
+            return self._app_packet(body, now) if self.build.motor_app else []
         if wire.same_port(head, wire.SUPERVISOR_HEADER):
             return self._supervisor(head, body)
         if wire.same_port(head, wire.LEGACY_STOP_HEADER):
@@ -315,15 +339,24 @@ class SimulatedCrazyflie:
             return [bytes([head]) + struct.pack("<Bi", wire.GET_PROTOCOL_VERSION, wire.MIN_PROTOCOL_VERSION)]
         return self.services.handle(head, body) or []
 
-    def _app_packet(self, body: bytes, now: float) -> None:
+    def _app_packet(self, body: bytes, now: float) -> list[bytes]:
+        claim = wire.Claim.unpack(body)
+        if claim is not None:  # answered with the identity, not a state
+            self.app.claim(claim.session, ticks(now))
+            ident = wire.Identity(self._flags(now), self.app.owner_token, self.app.owner_session, self.uid,
+                                  tuple(int(np.clip(round(a * 1000), -32767, 32767)) for a in self.acc_g))
+            return [bytes([wire.APP_HEADER]) + ident.pack()]
         self._answer_due = True  # the app answers each batch of received packets with one state
         try:
             cmd = wire.MotorCommand.unpack(body)
         except ValueError:
             self.app.drop()
-            return
-        if self.app.offer(cmd, ticks(now)):
+            return []
+        if not self.app.accepts(cmd):
+            self.app.drop()  # another owner's
+        elif self.app.offer(cmd, ticks(now)):
             self.last_setpoint = now  # commanderSetSetpoint(..., COMMANDER_PRIORITY_CRTP)
+        return []
 
     def _supervisor(self, head: int, body: bytes) -> list[bytes]:
         if body[:1] == bytes([wire.CMD_EMERGENCY_STOP]):
@@ -362,6 +395,7 @@ class SimulatedCrazyflie:
         """Advance the supervisor (once per physics step) with the module's specific force (g, module frame) and
         its motors' speeds (RPM)."""
         if self.powered:
+            self.acc_g = np.asarray(acc_g, float)
             sup = self.supervisor
             sup.tumble_check = bool(self.services.value("supervisor.tmblChckEn"))
             over_idle = bool(np.any(self.ratios(now) > self.motor_map.idle + 1e-9))
@@ -371,18 +405,21 @@ class SimulatedCrazyflie:
         """A batch of app packets arrived since the last state: the app answers it."""
         return self.powered and self.build.motor_app and self._answer_due
 
+    def _flags(self, now: float) -> int:
+        latest, sup = self.app.latest, self.supervisor
+        return ((wire.STATE_ARMED if latest is not None and latest.armed else 0)
+                | (wire.STATE_LOCKED if sup.locked else 0)
+                | (wire.STATE_SUPERVISOR_ARMED if sup.armed else 0)
+                | (wire.STATE_FRESH if self.app.fresh(ticks(now)) else 0)
+                | (wire.STATE_CAN_FLY if sup.can_fly else 0)
+                | (wire.STATE_FLYING if sup.flying else 0))
+
     def state_packet(self, now: float, gyro: np.ndarray) -> bytes:
         """The app's state report (whole CRTP packet): the motor ratios now, the battery, ``gyro`` in rad/s."""
         self._answer_due = False
         latest = self.app.latest
-        sup = self.supervisor
-        flags = ((wire.STATE_ARMED if latest is not None and latest.armed else 0)
-                 | (wire.STATE_LOCKED if sup.locked else 0)
-                 | (wire.STATE_SUPERVISOR_ARMED if sup.armed else 0)
-                 | (wire.STATE_FRESH if self.app.fresh(ticks(now)) else 0)
-                 | (wire.STATE_CAN_FLY if sup.can_fly else 0)
-                 | (wire.STATE_FLYING if sup.flying else 0))
-        st = wire.ModuleState(flags, latest.sequence if latest is not None else 0, wire.to_counts(self.ratios(now)),
+        st = wire.ModuleState(self._flags(now), latest.sequence if latest is not None else 0,
+                              wire.to_counts(self.ratios(now)),
                               round(self.battery_v * 1e3), tuple(float(g) for g in gyro), self.app.received,
                               self.app.dropped)
         return bytes([wire.APP_HEADER]) + st.pack()

@@ -47,8 +47,9 @@ class SimulatedCrazyflies(ModulePeer):
         build = FirmwareBuild(platform=c.platform, motor_app=c.motor_app)
         self._links: list[_Link] = []
         for i in range(self.assembly.n):
+            # A unique id per module and per peer (its first port), as every MCU has its own.
             firmware = SimulatedCrazyflie(build, time.monotonic(), c.params, self.assembly.params.motor_command,
-                                          c.battery_v)
+                                          c.battery_v, uid=(0x00370041, c.port, 0x38380000 + i))
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self._links.append(_Link(s, firmware))
             s.bind((c.host, c.port + i))

@@ -37,13 +37,13 @@ READY_TIMEOUT_S = 10.0
 
 
 class _Process:
-    def __init__(self, binary: Path, crtp_port: int, params: Path, log: Path) -> None:
+    def __init__(self, binary: Path, crtp_port: int, params: Path, log: Path, uid: str) -> None:
         self.sensor_port = _free_port()
         self.motor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.motor.bind(("127.0.0.1", 0))
         self.motor.setblocking(False)
         self.cmd = [str(binary), "--crtp-port", str(crtp_port), "--sensor-port", str(self.sensor_port),
-                    "--motor-addr", f"127.0.0.1:{self.motor.getsockname()[1]}", "--params", str(params)]
+                    "--motor-addr", f"127.0.0.1:{self.motor.getsockname()[1]}", "--params", str(params), "--uid", uid]
         self.log = log
         self.ratios = np.zeros(4)
         self.info = 0
@@ -114,8 +114,9 @@ class FirmwareCrazyflies(ModulePeer):
         c = self.config
         self._procs = []  # filled one by one: closing stops the ones already started if a later one fails
         for i in range(self.assembly.n):
+            # A unique id per module and per peer, like sim.crazyflie_peer's.
             self._procs.append(_Process(self.binary, c.port + i, self.state_dir / f"m{i}.params",
-                                        self.state_dir / f"m{i}.log"))
+                                        self.state_dir / f"m{i}.log", f"00370041{c.port:08x}{0x38380000 + i:08x}"))
         self._wait_ready()
 
     def _wait_ready(self) -> None:

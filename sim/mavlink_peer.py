@@ -211,7 +211,7 @@ class SimulatedPx4(ModulePeer):
         if mav.MAVLINK_MSG_ID_ATTITUDE in due:
             rotation = self.sim.true_state().rotation @ self.assembly.module_rotations[i]
             w = mw.FRD_TO_FLU @ self.module_gyro(i)
-            send.attitude_send(t_ms, *roll_pitch_yaw(rotation), *(float(x) for x in w))
+            send.attitude_send(t_ms, *roll_pitch_yaw(mw.px4_attitude(rotation)), *(float(x) for x in w))
         if mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW in due:
             lo, hi = int(self.param(i, "PWM_MAIN_MIN")), int(self.param(i, "PWM_MAIN_MAX"))
             pwm = (mw.to_pwm(self.module_motors(i), self.assembly.params.u_max, lo, hi) if m.armed

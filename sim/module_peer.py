@@ -18,6 +18,7 @@ import numpy as np
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
 from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
+from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, open_session
 from sim.pybullet_backend import PyBulletBackend, SimConfig
 from sim.virtual_mocap import VirtualMocap
@@ -53,6 +54,8 @@ class PeerConfig:
     must be asked to arm, and which thrust map the firmware applies (the assembly's ``motor_command``)."""
     motor_app: bool = True
     """Crazyflie: the motor app is flashed (False: stock firmware, which the ground station must refuse)."""
+    mocap_mac_key: MocapKey | None = None
+    """The virtual mocap authenticates its samples with this key (``groundstation mocap-key``)."""
 
 
 class ModulePeer:
@@ -111,7 +114,7 @@ class ModulePeer:
             self.close()  # nothing half-open: the firmware processes already started stop with it
             raise
         self._session = open_session(listen=[c.mocap_endpoint])
-        self._publisher = PosePublisher(self._session, c.mocap_key)
+        self._publisher = PosePublisher(self._session, c.mocap_key, c.mocap_mac_key)
         self._vmocap = VirtualMocap(self._publisher, c.mocap_rate_hz, c.position_noise, c.attitude_noise,
                                     c.mocap_latency)
         self.sim.connect()

@@ -14,6 +14,7 @@ import numpy as np
 from groundstation.assembly.assembly import Assembly
 from groundstation.control.state import RigidState
 from groundstation.loop_activity import LoopActivity
+from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, Security, open_session
 from sim.pybullet_backend import PyBulletBackend, SimConfig
 from sim.virtual_mocap import VirtualMocap
@@ -28,14 +29,14 @@ class SimulatedWorld:
     config's endpoint, where the ground station listens)."""
 
     def __init__(self, assembly: Assembly, cfg: FlightConfig, key: str, listen: list[str], faults: Faults,
-                 activity: LoopActivity, security: Security | None = None) -> None:
+                 activity: LoopActivity, security: Security | None = None, mac_key: MocapKey | None = None) -> None:
         m = cfg.mocap
         self.faults = faults
         self._stack = ExitStack()
         connect = [] if listen else [m.endpoint]
         session = open_session(listen=listen, connect=connect, security=security)
         self._stack.callback(session.close)
-        publisher = PosePublisher(session, key)
+        publisher = PosePublisher(session, key, mac_key)
         self._stack.callback(publisher.close)
         vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s,
                               threaded=True, activity=activity)

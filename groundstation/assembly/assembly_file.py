@@ -19,6 +19,7 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.errors import ConfigError, TopologyError
+from groundstation.output import writing
 
 FORMAT = "groundstation.assembly/1"
 POSE_TOLERANCE = 1e-6
@@ -49,21 +50,16 @@ def assembly_record(assembly: Assembly) -> dict:
 def save_assembly(path: str | Path, record: dict) -> Path:
     """Write an assembly record (from :func:`assembly_record`, optionally with design fields) as JSON."""
     p = Path(path)
-    p.write_text(json.dumps(record, indent=1) + "\n")
+    with writing(p):
+        p.write_text(json.dumps(record, indent=1) + "\n")
     return p
 
 
 def load_assembly(path: str | Path) -> tuple[Assembly, dict]:
     """Load and validate an assembly file; returns the assembly and the whole record."""
     p = Path(path)
-    src = str(p)
-    try:
-        record = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError("file not found", path=src) from None
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"not a JSON assembly file: {exc}", path=src) from None
-    return assembly_from_record(record, src), record
+    record = config.read_json(p)  # capped: a log or /dev/zero given as an assembly is one line, not a hang
+    return assembly_from_record(record, str(p)), record
 
 
 def assembly_from_record(record, src: str) -> Assembly:

@@ -128,6 +128,12 @@ class BackendBase(ABC):
         rad^2/s^2; zeros where the firmware has none. Empty before the backend knows its modules."""
         return np.zeros(0)
 
+    def module_gravity(self) -> np.ndarray | None:
+        """(n, 3): up (against gravity) in each module's own frame as the module measures it, unit, for the
+        preflight's placement check (:mod:`groundstation.runtime.placement`); None where the backend's modules
+        report no such thing (a simulator's modules are where the assembly file says)."""
+        return None
+
     @abstractmethod
     def connect(self) -> None: ...
 

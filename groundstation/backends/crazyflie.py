@@ -17,7 +17,17 @@ sequence a state echoes (median of the newest few), and the loss from the app's 
 against the sequence numbers it saw go by over ``quality_window`` (a reordered or lost command is not accepted).
 Both are per module and reach the flight in :class:`~groundstation.backends.base.Telemetry`, whose failsafe
 policy acts on them. The module answers each batch of commands with one state echoing its newest command, and the
-loop polls once a period, so the round trip includes up to one period of waiting for the poll.
+loop polls once a period. A state found by a poll arrived after the poll before it, so the round trip is taken
+from the send to that earlier poll: a lower bound, which leaves out the wait for the next poll and a poll that
+came late because this process was busy (a loaded machine: the ground station's own lateness is not the link's;
+a slow link still shows in full, its states arriving periods later).
+
+One flight owns a module set. Connecting takes a host lock per link (:mod:`groundstation.backends.link_lock`);
+preflight claims every module for this backend's random session id before anything else (motor app contract
+3): a module that flies for another ground station refuses, and its commands carry the token the module gave, so
+a module drops any other sender's. The claim's answer names the module (its MCU's unique id: two links to one
+module are refused) and the direction of gravity it measures (:meth:`module_gravity`, for the flight's placement
+check).
 
 Safety at this edge: commands are bounded (``applied_command``) and carry the armed flag, so a module ignores them
 until armed; :meth:`arm` asks each module's supervisor to arm (Bolt and 2.1 Brushless builds require it) and
@@ -32,6 +42,7 @@ module also makes ``link_ok`` False unless it was isolated (:meth:`isolate`); th
 
 from __future__ import annotations
 
+import secrets
 import threading
 import time
 from collections import deque
@@ -44,6 +55,7 @@ from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.motor_map import REQUIRES_ARMING
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
+from groundstation.backends.link_lock import LinkLocks
 from groundstation.errors import ArmingError, LinkError
 
 ARM_RETRY_S = 0.05
@@ -192,7 +204,8 @@ class LinkQuality:
 
     latency_s: np.ndarray
     """Median round trip of a command (send to the state that echoes it) over the newest echoes, s; NaN until
-    measured. It includes the wait for the module's next report and for the next poll (one control period)."""
+    measured. Each is a lower bound: from the send to the last poll that did not find the state yet (0 if the
+    state came within the period)."""
     loss: np.ndarray
     """Fraction of commands the module did not accept (lost, reordered, duplicated); NaN until measured."""
 
@@ -216,6 +229,12 @@ class _Module:
         """Round trips of the newest states that echoed a new sequence, s."""
         self.fault = ""
         """Why the module stopped flying since arming ("" while it flies); latched."""
+        self.identity: wire.Identity | None = None
+        """The newest answer to a claim."""
+        self.token = 0
+        """The token the module gave this backend's session (0: not claimed)."""
+        self.unknown = 0
+        """Packets on no port this backend speaks (a link that is not a Crazyflie's sends nothing else)."""
 
 
 def _age_text(age: float) -> str:
@@ -265,11 +284,18 @@ class CrazyflieBackend(BackendBase):
         self._gyro = np.zeros((n, 3))
         self._window = self.settings.quality_window
         """Stretch of states the loss is taken over, s."""
+        self._polled = -np.inf
+        """When the links were last polled for states, s."""
+        self.session = secrets.randbits(32) or 1
+        """This backend's session id, claimed on every module (never 0)."""
+        self._locks = LinkLocks(self.uris)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
+        """Take the links' host locks and open them (nothing is sent: commands wait for the preflight's claim)."""
         if self._modules:
             return
+        self._locks.acquire()
         try:
             for i, uri in enumerate(self.uris):
                 driver = _link_driver(uri, lambda msg, uri=uri: self._errors.append(f"{uri}: {msg}"))
@@ -277,13 +303,71 @@ class CrazyflieBackend(BackendBase):
         except LinkError:
             self.close()
             raise
-        self._send_all(np.zeros((len(self.uris), 4)), armed=False)
+
+    def _claim(self) -> list[str]:
+        """Claim every module for this session (repeated until answered, up to ``preflight_timeout``); issues for
+        the modules that did not answer, fly for another session, or are reached by two links."""
+        since = self._clock()
+        deadline = since + self.settings.preflight_timeout
+        claim = CRTPPacket(wire.APP_HEADER, wire.Claim(self.session).pack())
+        version = CRTPPacket(wire.VERSION_HEADER, bytes([wire.GET_PROTOCOL_VERSION]))
+        for m in self._modules:
+            m.identity = None
+        while self._clock() < deadline:
+            for m in self._modules:
+                if m.identity is None:
+                    m.sender.post(claim, True)
+                if m.version is None:  # the firmware answers it without the app: tells "no app" from "silent"
+                    m.sender.post(version, True)
+            self._send_all(np.zeros((len(self._modules), 4)), armed=False)  # owned modules keep answering
+            time.sleep(self.settings.command_period)
+            self._drain()
+            if all(m.identity is not None for m in self._modules):
+                break  # every module answered (a refusal is final: the owner flies it)
+        issues = []
+        for i, (uri, m) in enumerate(zip(self.uris, self._modules, strict=True)):
+            ident = m.identity
+            if ident is None and m.version is None and m.unknown:
+                issues.append(f"module {i} ({uri}) answers with {m.unknown} packets that are no Crazyflie's: not a "
+                              f"Crazyflie on this link (a MAVLink module?)")
+            elif ident is None and m.version is None:
+                issues.append(f"module {i} ({uri}) does not answer")
+            elif ident is None:
+                issues.append(f"module {i} ({uri}) runs no motor app of contract {wire.APP_VERSION} (it does not "
+                              f"answer the claim): flash firmware/crazyflie_app (motorApp.version {wire.APP_VERSION})")
+            elif ident.session != self.session:
+                issues.append(f"module {i} ({uri}) flies for another ground station (session {ident.session:08x}): "
+                              f"one flight owns a module set")
+        seen: dict[str, int] = {}
+        for i, m in enumerate(self._modules):
+            if m.identity is None:
+                continue
+            first = seen.setdefault(m.identity.uid_hex, i)
+            if first != i:
+                issues.append(f"module {first} ({self.uris[first]}) and module {i} ({self.uris[i]}) are one module "
+                              f"(unique id {m.identity.uid_hex}): two links reach it")
+        return issues
+
+    def module_gravity(self) -> np.ndarray | None:
+        """Per module, the direction of the specific force its accelerometer measured at the claim (module frame,
+        unit; at rest: up), or None if a module has not answered."""
+        if not self._modules or any(m.identity is None for m in self._modules):
+            return None
+        return np.array([m.identity.gravity_up for m in self._modules])
+
+    def module_ids(self) -> list[str | None]:
+        """Per module, its MCU's unique id (hex) from the claim's answer."""
+        return [m.identity.uid_hex if m.identity is not None else None for m in self._modules]
 
     def preflight(self) -> PreflightReport:
-        """Every module answers with a recent enough firmware running the motor app, unlocked, with battery and
-        link quality good enough; streams disarmed zeros meanwhile (nothing spins)."""
+        """Every module is claimed for this session (one owner; distinct modules), answers with a recent enough
+        firmware running the motor app, unlocked, with battery and link quality good enough; streams disarmed zeros
+        meanwhile (nothing spins)."""
         if not self._modules:
             return PreflightReport(False, ("not connected",))
+        claimed = self._claim()
+        if claimed:
+            return PreflightReport(False, tuple(claimed))
         s = self.settings
         since = self._clock()
         deadline = since + s.preflight_timeout
@@ -303,7 +387,9 @@ class CrazyflieBackend(BackendBase):
                 break
         quality = self.link_quality()
         self._window = s.quality_window
-        issues = []
+        # Ask again (the same session keeps its token): the identity's accelerometer reading is then the one at
+        # the end of preflight, the assembly at rest where the flight's placement check compares it with mocap.
+        issues = self._claim()
         for i, (uri, m) in enumerate(zip(self.uris, self._modules, strict=True)):
             name = f"module {i} ({uri})"
             if m.version is None and m.heard < since:
@@ -341,6 +427,10 @@ class CrazyflieBackend(BackendBase):
         supervisor disarms after 30 s armed without flying."""
         if not self._modules:
             raise ArmingError("not connected")
+        if not all(m.token for m in self._modules):  # arming needs the modules' ownership: claim (preflight does)
+            claimed = self._claim()
+            if claimed:
+                raise ArmingError("; ".join(claimed))
         try:
             self._arm()
         except BaseException:  # refused, or interrupted half-way (Ctrl-C): no supervisor stays armed
@@ -427,6 +517,10 @@ class CrazyflieBackend(BackendBase):
         now = self._clock()
         heard = np.array([m.heard for m in self._modules]) if self._modules else np.zeros(0)
         fresh = heard >= now - self.settings.link_timeout
+        if not fresh.all():
+            # Modules that went quiet within two periods of a lost one stopped with it (a dead dongle, a peer
+            # gone): named together, not one now and the other in a period that the stop has already ended.
+            fresh &= heard >= now - self.settings.link_timeout + 2 * self.settings.command_period
         counted = [i for i in range(len(self._modules)) if i not in self._isolated]
         thrust = self._map.thrust(self._counts, self._battery)
         quality = self.link_quality()
@@ -467,6 +561,7 @@ class CrazyflieBackend(BackendBase):
             m.sender.close()
             m.driver.close()
         self._modules = []
+        self._locks.release()
 
 
     # -- measurements -------------------------------------------------------------------------------------------
@@ -505,8 +600,9 @@ class CrazyflieBackend(BackendBase):
         self._sent += 1
         self._sent_at[self._seq] = self._clock()
         for m, f in zip(self._modules, fractions, strict=False):
-            cmd = wire.MotorCommand(self._seq, armed, wire.to_counts(f))
-            m.sender.post(CRTPPacket(wire.APP_HEADER, cmd.pack()))
+            if m.token:  # before the claim the module would drop it (and another owner's module must not see it)
+                cmd = wire.MotorCommand(self._seq, armed, wire.to_counts(f), m.token)
+                m.sender.post(CRTPPacket(wire.APP_HEADER, cmd.pack()))
 
     def _module_fault(self, st: wire.ModuleState, restarted: bool) -> str:
         """Why an armed module's firmware no longer flies it ("" if it does)."""
@@ -558,24 +654,38 @@ class CrazyflieBackend(BackendBase):
 
     def _drain(self) -> None:
         now = self._clock()
+        before, self._polled = self._polled, now  # the states found now arrived after ``before``
         window = self._window
         for i, m in enumerate(self._modules):
             while (pk := m.driver.receive_packet(0)) is not None:
                 data = bytes(pk.data)
                 if wire.same_port(pk.header, wire.APP_HEADER):
+                    if data[:1] == bytes([wire.KIND_IDENTITY]):
+                        self._on_identity(m, data)
+                        continue
                     try:
                         st = wire.ModuleState.unpack(data)
                     except ValueError:
                         continue
-                    self._on_state(i, m, st, now)
+                    self._on_state(i, m, st, now, before)
                 elif wire.same_port(pk.header, wire.SUPERVISOR_HEADER):
                     m.arm_reply = wire.arm_response(data) or m.arm_reply
                 elif wire.same_port(pk.header, wire.VERSION_HEADER):
                     m.version = wire.version_reply(data) or m.version
+                elif pk.header != wire.NULL_HEADER:
+                    m.unknown += 1
             while m.samples and m.samples[0][0] < now - window:
                 m.samples.popleft()
 
-    def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float) -> None:
+    def _on_identity(self, m: _Module, data: bytes) -> None:
+        try:
+            m.identity = wire.Identity.unpack(data)
+        except ValueError:
+            return
+        if m.identity.session == self.session:
+            m.token = m.identity.token
+
+    def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float, before: float) -> None:
         previous = m.state
         restarted = False
         if previous is not None:
@@ -595,7 +705,7 @@ class CrazyflieBackend(BackendBase):
         if ours and (previous is None or st.sequence != previous.sequence):
             sent = self._sent_at[st.sequence]
             if np.isfinite(sent) and 0.0 <= now - sent < 1.0:
-                m.rtts.append(now - sent)
+                m.rtts.append(max(before - sent, 0.0))
                 if len(m.rtts) > self.settings.latency_samples:
                     m.rtts.popleft()
         if ours:

@@ -9,11 +9,19 @@ the app-channel payloads is ``firmware/crazyflie_app/src/motor_protocol.c``; bot
 
 App channel (port 13, channel 2), little-endian:
 
-* Motor command, ground -> module, 12 bytes ``<BBH4H``: kind ``0x01``, flags (bit 0 armed), a 16-bit sequence,
-  four normalized forces ``round(f / f_max * 65535)`` in the module's rotor order (the platform's map from thrust
-  to normalized force is :mod:`groundstation.assembly.motor_map`).
-* Broadcast command, ground -> up to four modules in one no-ack packet: kind ``0x02``, flags, sequence, first
-  slot, module count, then per module four 12-bit forces packed in 6 bytes (``motorApp.slot`` picks a module's).
+* Claim, ground -> module, 5 bytes ``<BI``: kind ``0x03``, the ground station's session id (random, not 0). The
+  module answers with its identity report. It takes the claim unless another session's armed commands are
+  fresh (it flies for that one); a new owner gets a new token, which every command must carry.
+* Identity, module -> ground, 25 bytes ``<BBBI3I3h``: kind ``0x82``, state flags, the owner's token, the owner's
+  session, the MCU's unique id (``cpu.id0..id2``), the accelerometer in milli-g (module frame: at rest, gravity's
+  direction, up).
+* Motor command, ground -> module, 13 bytes ``<BBBH4H``: kind ``0x01``, flags (bit 0 armed), the owner's token,
+  a 16-bit sequence, four normalized forces ``round(f / f_max * 65535)`` in the module's rotor order (the
+  platform's map from thrust to normalized force is :mod:`groundstation.assembly.motor_map`). A command with
+  another token is dropped (counted).
+* Broadcast command, ground -> up to four modules in one no-ack packet: kind ``0x02``, flags (bit 0 armed, bits
+  1-3 the module count), sequence, first slot, token, then per module four 12-bit forces packed in 6 bytes
+  (``motorApp.slot`` picks a module's).
 * State, module -> ground, one per batch of commands the app receives (never unprompted, so a ground station that
   connects reads no backlog), 30 bytes ``<BBH4HH3fHH``: kind ``0x81``, flags (armed, locked, supervisor armed,
   fresh, can fly, flying), the sequence of the newest command accepted (the latency probe), the motor ratios that
@@ -52,13 +60,16 @@ MAX_DATA = 30
 """CRTP payload limit, bytes."""
 MIN_PROTOCOL_VERSION = 12
 """crazyflie-firmware 2026.04: the supervisor port (arming, emergency stop) the backend relies on."""
-APP_VERSION = 2
+APP_VERSION = 3
 """The contract version this module speaks; the app serves it read-only as ``motorApp.version``. Version 2: forces
-only while the supervisor can fly, states report motor ratios and answer commands."""
+only while the supervisor can fly, states report motor ratios and answer commands. Version 3: one owner at a
+time (claim, token), the identity report."""
 
 KIND_COMMAND = 0x01
 KIND_BROADCAST = 0x02
+KIND_CLAIM = 0x03
 KIND_STATE = 0x81
+KIND_IDENTITY = 0x82
 FLAG_ARMED = 0x01
 STATE_ARMED = 0x01
 STATE_LOCKED = 0x02
@@ -70,9 +81,12 @@ FULL_SCALE = 65535
 BROADCAST_FULL_SCALE = 4095
 BROADCAST_MAX_MODULES = 4
 
-_COMMAND = struct.Struct("<BBH4H")
+_COMMAND = struct.Struct("<BBBH4H")
+_CLAIM = struct.Struct("<BI")
+_IDENTITY = struct.Struct("<BBBI3I3h")
 _STATE = struct.Struct("<BBH4HH3fHH")
 _BROADCAST_HEADER = struct.Struct("<BBHBB")
+_BROADCAST_COUNT_SHIFT = 1
 _VERSION_REPLY = struct.Struct("<Bi")
 
 
@@ -113,16 +127,75 @@ class MotorCommand:
     armed: bool
     counts: tuple[int, int, int, int]
     """Normalized forces of rotors q = 1..4, 0..65535."""
+    token: int = 0
+    """The owner's token the sender holds (0: none; the module drops such commands)."""
 
     def pack(self) -> bytes:
-        return _COMMAND.pack(KIND_COMMAND, FLAG_ARMED if self.armed else 0, self.sequence & 0xFFFF, *self.counts)
+        return _COMMAND.pack(KIND_COMMAND, FLAG_ARMED if self.armed else 0, self.token, self.sequence & 0xFFFF,
+                             *self.counts)
 
     @classmethod
     def unpack(cls, data: bytes) -> MotorCommand:
         if len(data) != _COMMAND.size or data[0] != KIND_COMMAND:
             raise ValueError(f"not a motor command: {bytes(data).hex()}")
-        _, flags, seq, *counts = _COMMAND.unpack(data)
-        return cls(seq, bool(flags & FLAG_ARMED), tuple(counts))
+        _, flags, token, seq, *counts = _COMMAND.unpack(data)
+        return cls(seq, bool(flags & FLAG_ARMED), tuple(counts), token)
+
+
+@dataclass(frozen=True)
+class Claim:
+    """Ground -> module: become its owner (answered by an :class:`Identity`)."""
+
+    session: int
+    """The ground station's session id, 1..2^32-1."""
+
+    def pack(self) -> bytes:
+        return _CLAIM.pack(KIND_CLAIM, self.session)
+
+    @classmethod
+    def unpack(cls, data: bytes) -> Claim | None:
+        """The claim in ``data``, or None if it is not a valid one (as the app decodes it)."""
+        if len(data) != _CLAIM.size or data[0] != KIND_CLAIM:
+            return None
+        session = _CLAIM.unpack(data)[1]
+        return cls(session) if session else None
+
+
+@dataclass(frozen=True, eq=False)
+class Identity:
+    """Module -> ground: who owns the module, which module it is, where gravity points in its frame."""
+
+    flags: int
+    """State flags (``STATE_*``)."""
+    token: int
+    """The owner's token (0: no owner)."""
+    session: int
+    """The owner's session id."""
+    uid: tuple[int, int, int]
+    """The MCU's unique id (``cpu.id0``, ``id1``, ``id2``)."""
+    acc_mg: tuple[int, int, int]
+    """Accelerometer, milli-g, module frame."""
+
+    @property
+    def gravity_up(self) -> np.ndarray:
+        """The measured specific force as a unit vector in the module frame (at rest: up); zeros if none."""
+        a = np.asarray(self.acc_mg, float)
+        n = float(np.linalg.norm(a))
+        return a / n if n > 0 else a
+
+    @property
+    def uid_hex(self) -> str:
+        return "".join(f"{v:08x}" for v in self.uid)
+
+    def pack(self) -> bytes:
+        return _IDENTITY.pack(KIND_IDENTITY, self.flags, self.token, self.session, *self.uid, *self.acc_mg)
+
+    @classmethod
+    def unpack(cls, data: bytes) -> Identity:
+        if len(data) != _IDENTITY.size or data[0] != KIND_IDENTITY:
+            raise ValueError(f"not an identity report: {bytes(data).hex()}")
+        _, flags, token, session, u0, u1, u2, ax, ay, az = _IDENTITY.unpack(data)
+        return cls(flags, token, session, (u0, u1, u2), (ax, ay, az))
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,13 +207,17 @@ class BroadcastCommand:
     first_slot: int
     counts: tuple[tuple[int, int, int, int], ...]
     """Per module, normalized forces 0..65535 (sent with 12 bits)."""
+    token: int = 0
+    """The owner's token (one for all: a ground station claims every module it broadcasts to; the modules give
+    their tokens, so a broadcast goes to modules that gave the same one)."""
 
     def pack(self) -> bytes:
         n = len(self.counts)
         if not 1 <= n <= BROADCAST_MAX_MODULES or not 0 <= self.first_slot <= 256 - n:
             raise ValueError(f"a broadcast carries 1..{BROADCAST_MAX_MODULES} modules within slots 0..255")
-        out = bytearray(_BROADCAST_HEADER.pack(KIND_BROADCAST, FLAG_ARMED if self.armed else 0,
-                                               self.sequence & 0xFFFF, self.first_slot, n))
+        flags = (FLAG_ARMED if self.armed else 0) | n << _BROADCAST_COUNT_SHIFT
+        out = bytearray(_BROADCAST_HEADER.pack(KIND_BROADCAST, flags, self.sequence & 0xFFFF, self.first_slot,
+                                               self.token))
         for module in self.counts:
             packed = 0
             for q, c in enumerate(module):
@@ -157,7 +234,7 @@ class BroadcastCommand:
         twelve = [(packed >> (12 * q)) & 0xFFF for q in range(4)]
         return MotorCommand(self.sequence & 0xFFFF, self.armed,
                             tuple((v * FULL_SCALE + BROADCAST_FULL_SCALE // 2) // BROADCAST_FULL_SCALE
-                                  for v in twelve))
+                                  for v in twelve), self.token)
 
 
 @dataclass(frozen=True, eq=False)
@@ -242,10 +319,11 @@ def version_reply(data: bytes) -> int | None:
 def _command_vectors() -> list[tuple[int, bytes, str, MotorCommand | None]]:
     """(slot, payload, status the app must report, the command it must decode)."""
     out = []
-    for cmd in (MotorCommand(0, False, (0, 0, 0, 0)), MotorCommand(1, True, (0, 1, 32768, 65535)),
-                MotorCommand(0xBEEF, True, (12345, 54321, 1000, 65000)), MotorCommand(65535, False, (1, 2, 3, 4))):
+    for cmd in (MotorCommand(0, False, (0, 0, 0, 0)), MotorCommand(1, True, (0, 1, 32768, 65535), 1),
+                MotorCommand(0xBEEF, True, (12345, 54321, 1000, 65000), 0xA5),
+                MotorCommand(65535, False, (1, 2, 3, 4), 255)):
         out.append((0, cmd.pack(), "OK", cmd))
-    bc = BroadcastCommand(0x1234, True, 2, ((0, 65535, 32768, 16), (65535, 0, 0, 65535), (100, 200, 300, 400)))
+    bc = BroadcastCommand(0x1234, True, 2, ((0, 65535, 32768, 16), (65535, 0, 0, 65535), (100, 200, 300, 400)), 7)
     for slot in (2, 3, 4):
         out.append((slot, bc.pack(), "OK", bc.for_slot(slot)))
     out.append((1, bc.pack(), "NOT_FOR_US", None))
@@ -258,6 +336,19 @@ def _command_vectors() -> list[tuple[int, bytes, str, MotorCommand | None]]:
     out.append((0, bc.pack()[:-1], "BAD_LENGTH", None))
     return out
 
+
+CLAIM_VECTORS = (  # (payload, the session the app must decode, or None: not a claim)
+    (Claim(1).pack(), 1), (Claim(0xDEADBEEF).pack(), 0xDEADBEEF), (Claim(0).pack(), None),
+    (Claim(5).pack()[:-1], None), (Claim(5).pack() + b"\x00", None),
+    (bytes([KIND_COMMAND]) + Claim(5).pack()[1:], None),
+)
+
+IDENTITY_VECTORS = (
+    Identity(0, 0, 0, (0, 0, 0), (0, 0, 0)),
+    Identity(STATE_SUPERVISOR_ARMED | STATE_CAN_FLY, 3, 0xA1B2C3D4, (0x00370041, 0x3236510D, 0x38383432),
+             (-17, 342, -1000)),
+    Identity(0xFF, 255, 0xFFFFFFFF, (0xFFFFFFFF, 1, 0x80000000), (32767, -32767, 1000)),
+)
 
 STATE_VECTORS = (
     ModuleState(0, 0, (0, 0, 0, 0), 0, (0.0, 0.0, 0.0), 0, 0),
@@ -275,8 +366,15 @@ def vectors_text() -> str:
     for slot, payload, status, cmd in _command_vectors():
         fields = f"command slot={slot} status={status}"
         if cmd is not None:
-            fields += f" seq={cmd.sequence} armed={int(cmd.armed)} counts={','.join(map(str, cmd.counts))}"
+            fields += (f" seq={cmd.sequence} armed={int(cmd.armed)} token={cmd.token} "
+                       f"counts={','.join(map(str, cmd.counts))}")
         lines.append(f"{fields} hex={payload.hex()}")
+    for payload, session in CLAIM_VECTORS:
+        lines.append(f"claim valid={int(session is not None)} session={session or 0} hex={payload.hex()}")
+    for ident in IDENTITY_VECTORS:
+        lines.append(f"identity flags={ident.flags} token={ident.token} session={ident.session} "
+                     f"uid={','.join(map(str, ident.uid))} acc_mg={','.join(map(str, ident.acc_mg))} "
+                     f"hex={ident.pack().hex()}")
     for st in STATE_VECTORS:
         gyro = ",".join(repr(float(np.float32(g))) for g in st.gyro)  # exactly the float32 sent
         lines.append(f"state flags={st.flags} seq={st.sequence} counts={','.join(map(str, st.counts))} "

@@ -13,6 +13,11 @@ every module to offboard and arms it, and fails (motors commanded off) unless ev
 that disarmed on its own while the flight needs it (offboard loss, a failsafe), makes ``link_ok`` False, and the
 flight stops. On the vehicle, offboard loss after ``COM_OF_LOSS_T`` stops the motors if the ground station dies.
 
+One flight owns a module set on this host (a lock per link, :mod:`groundstation.backends.link_lock`); PX4 <= 1.13
+has no owner of its own, so a ground station on another host is kept off only by the network. Preflight refuses
+two links that reach one vehicle (one system id) and reports each module's attitude for the flight's placement
+check (:meth:`module_gravity`).
+
 Every ``COMMAND_LONG`` is repeated every ``RETRY_S`` until the module acknowledges it (a radio or UDP link may
 lose either): mode switch and arming within ``arm_timeout``; the emergency stop (and a normal disarm) on every
 later ``send``/``telemetry`` call until confirmed or the module is lost, and for ``STOP_CONFIRM_S`` more when the
@@ -29,6 +34,7 @@ from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
 from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
+from groundstation.backends.link_lock import LinkLocks
 from groundstation.errors import ArmingError, LinkError
 
 mav = mavutil.mavlink
@@ -86,6 +92,8 @@ class _Module:
         self.pending: list[tuple[int, tuple[float, ...]]] = []
         """Commands to repeat until acknowledged: (command, params) (the stop or a normal disarm)."""
         self.pending_sent = -np.inf
+        self.up: np.ndarray | None = None
+        """Up in the module's frame from its newest ATTITUDE (unit)."""
 
 
 class MavlinkBackend(BackendBase):
@@ -108,11 +116,13 @@ class MavlinkBackend(BackendBase):
         self._gyro = np.zeros((n, 3))
         self._stop_sent = False
         self._last_heartbeat = -np.inf
+        self._locks = LinkLocks(self.links)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
         if self._modules:
             return
+        self._locks.acquire()
         for link in self.links:
             try:
                 conn = mavutil.mavlink_connection(link, source_system=mw.GCS_SYSTEM_ID,
@@ -149,7 +159,19 @@ class MavlinkBackend(BackendBase):
                    if self._modules[i].battery_heard >= since and v < self.settings.min_battery_v]
         issues += [f"module {i} is flight-terminated (reboot it)" for i, m in enumerate(self._modules) if m.terminated]
         issues += [f"module {i} is already armed" for i, m in enumerate(self._modules) if m.armed]
+        first: dict[int, int] = {}
+        for i, m in enumerate(self._modules):
+            if m.system_id is not None and first.setdefault(m.system_id, i) != i:
+                j = first[m.system_id]
+                issues.append(f"module {j} ({self.links[j]}) and module {i} ({self.links[i]}) are one vehicle "
+                              f"(system id {m.system_id}): two links reach it")
         return PreflightReport(not issues, tuple(issues))
+
+    def module_gravity(self) -> np.ndarray | None:
+        """Per module, up in its own frame from its newest attitude (unit), or None until every module sent one."""
+        if not self._modules or any(m.up is None for m in self._modules):
+            return None
+        return np.array([m.up for m in self._modules])
 
     def arm(self) -> None:
         """Switch every module to offboard and arm it; raises ArmingError (motors off) unless all confirm."""
@@ -226,6 +248,7 @@ class MavlinkBackend(BackendBase):
         for m in self._modules:
             m.conn.close()
         self._modules = []
+        self._locks.release()
 
     def unconfirmed(self) -> list[int]:
         """Modules that have not acknowledged the stop or disarm sent to them."""
@@ -328,6 +351,7 @@ class MavlinkBackend(BackendBase):
                         m.stop_acked = m.stop_acked or self._stop_sent
                 elif kind == "ATTITUDE":
                     self._gyro[i] = mw.FRD_TO_FLU @ np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
+                    m.up = mw.up_in_module(msg.roll, msg.pitch)
                 elif kind == "SERVO_OUTPUT_RAW":
                     # Outputs sent before the module saw the stop still show thrust; the disarm's ACK comes
                     # after them on the same link, so only later outputs say what is applied now.

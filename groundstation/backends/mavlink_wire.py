@@ -11,6 +11,11 @@ output q, so the four controls are the module's four rotor commands (see ``firmw
 * Applied motors, module -> ground: ``SERVO_OUTPUT_RAW`` (PWM in microseconds), mapped back with the same range.
 * Body rate: ``ATTITUDE`` rollspeed/pitchspeed/yawspeed, rad/s, in PX4's body frame FRD (x forward, y right,
   z down); the assembly's module frames are FLU (z up, along the thrust), so y and z change sign.
+* Attitude: ``ATTITUDE`` roll/pitch/yaw, rad: ZYX Euler angles of the FRD body frame in PX4's NED world; the
+  preflight's placement check takes the direction of gravity in the module frame from roll and pitch
+  (:func:`up_in_module`).
+* Identity: the autopilot's system id (``MAV_SYS_ID``, unique per vehicle on a shared link; learnt from its
+  heartbeat).
 * Battery: ``SYS_STATUS.voltage_battery``, mV.
 * Arming: ``MAV_CMD_DO_SET_MODE`` to offboard (PX4 accepts it only while setpoints stream), then
   ``MAV_CMD_COMPONENT_ARM_DISARM``; each answered by ``COMMAND_ACK``; ``HEARTBEAT.base_mode`` reports armed.
@@ -38,6 +43,19 @@ GCS_COMPONENT_ID = 190
 ACTUATOR_GROUP = 0
 FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])
 """Maps a vector from PX4's FRD body frame to the module's FLU frame (its own inverse)."""
+ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+"""Maps a vector from the ground station's ENU world (z up) to PX4's NED world (its own inverse)."""
+
+
+def px4_attitude(rotation: np.ndarray) -> np.ndarray:
+    """The FRD-in-NED rotation PX4 reports for a module whose FLU frame has ``rotation`` in the ENU world."""
+    return ENU_TO_NED @ np.asarray(rotation, float) @ FRD_TO_FLU
+
+
+def up_in_module(roll: float, pitch: float) -> np.ndarray:
+    """Up (against gravity) in the module's FLU frame from PX4's ``ATTITUDE`` roll and pitch, rad."""
+    down_frd = np.array([-np.sin(pitch), np.sin(roll) * np.cos(pitch), np.cos(roll) * np.cos(pitch)])
+    return FRD_TO_FLU @ -down_frd
 
 
 def to_controls(u: np.ndarray, u_max: float) -> list[float]:

@@ -17,6 +17,7 @@ from groundstation import __version__
 from groundstation.cli.design_cmd import design_command
 from groundstation.cli.enumerate_cmd import enumerate_command
 from groundstation.cli.fly_cmd import fly_command, log_group, mocap_bridge_command, sim_peer_command
+from groundstation.cli.mocap_cmd import mocap_key_command
 from groundstation.cli.optimize_cmd import optimize_command
 from groundstation.cli.params_cmd import params_command
 from groundstation.cli.replay_cmd import replay_command
@@ -41,6 +42,7 @@ cli.add_command(simulate_command)
 cli.add_command(fly_command)
 cli.add_command(log_group)
 cli.add_command(mocap_bridge_command)
+cli.add_command(mocap_key_command)
 cli.add_command(sim_peer_command)
 cli.add_command(params_command)
 cli.add_command(replay_command)

@@ -1,4 +1,4 @@
-"""Helpers shared by the commands: stderr console, progress bars, output path checks."""
+"""Helpers shared by the commands: number types of the options, stderr console, progress bars, output path checks."""
 
 from __future__ import annotations
 
@@ -6,10 +6,48 @@ import math
 import os
 from pathlib import Path
 
+import click
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from groundstation.errors import UsageError
+
+
+class FiniteFloat(click.FloatRange):
+    """The type of every float option: a finite number (``nan``, ``inf``: one line naming the option, exit 2),
+    optionally within a range like :class:`click.FloatRange` (whose bounds alone let ``nan`` through)."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+    def _describe_range(self) -> str:
+        return super()._describe_range() if self.min is not None or self.max is not None else ""
+
+
+FINITE = FiniteFloat()
+"""Any finite float."""
+
+SEED = click.IntRange(min=0)
+"""A random seed: numpy's generators take non-negative integers."""
+
+
+class FloatList(click.ParamType):
+    """Comma-separated numbers (``20,10,30,5``), each converted by ``item`` (a :class:`FiniteFloat`)."""
+
+    name = "list"
+
+    def __init__(self, item: FiniteFloat) -> None:
+        self.item = item
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        return tuple(self.item.convert(v.strip(), param, ctx) for v in str(value).split(","))
 
 
 def stderr_console() -> Console:

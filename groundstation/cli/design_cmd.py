@@ -11,7 +11,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import json_safe, progress_bar, stderr_console, writable_output
+from groundstation.cli.common import FINITE, SEED, json_safe, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
 EXIT_INFEASIBLE = 1
@@ -27,9 +27,9 @@ EXIT_INFEASIBLE = 1
 @click.option("--candidates", default=None, type=click.Path(dir_okay=False),
               help="Candidates file from 'enumerate --out' (default: enumerate here).")
 @click.option("--sample", type=int, default=None, metavar="N_n", help="Sample N_n candidates per level.")
-@click.option("--sigma", type=float, default=1.0, show_default=True)
+@click.option("--sigma", type=FINITE, default=1.0, show_default=True)
 @click.option("--scheme", default="compact", show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--no-modification", is_flag=True, help="Do not add n m g and the hover wrench to the task.")
 @click.option("--workers", type=int, default=1, show_default=True, help="Local worker processes.")
 @click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", help="Dask distributed scheduler.")
@@ -51,6 +51,7 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     from groundstation.design.optimize import SolverOptions
     from groundstation.design.selection import results_table, select
     from groundstation.design.task import load_task
+    from groundstation.output import writing
 
     if not 1 <= min_modules <= max_modules:
         raise UsageError(f"need 1 <= --min-modules <= --max-modules, got {min_modules} and {max_modules}")
@@ -100,13 +101,14 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
             raise
     rows = results_table(sel.results)
     if table_path is not None:
-        if table_path.suffix == ".json":
-            table_path.write_text(json.dumps(json_safe(rows), indent=1) + "\n")
-        else:
-            with table_path.open("w", newline="") as fh:
-                writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["n"])
-                writer.writeheader()
-                writer.writerows(rows)
+        with writing(table_path):
+            if table_path.suffix == ".json":
+                table_path.write_text(json.dumps(json_safe(rows), indent=1) + "\n")
+            else:
+                with table_path.open("w", newline="") as fh:
+                    writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["n"])
+                    writer.writeheader()
+                    writer.writerows(rows)
     if sel.best is None:
         click.echo(f"groundstation: no feasible design with up to {max_modules} modules "
                    f"({len(rows)} candidates solved)", err=True)

@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import progress_bar, stderr_console, writable_output
+from groundstation.cli.common import FINITE, SEED, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
 
@@ -18,12 +18,12 @@ from groundstation.errors import UsageError
               help="Isomorphism group: C4 (rotations, paper), D4 (rotations and mirrors) or none.")
 @click.option("--sample", "sample", type=int, default=None, metavar="N_n",
               help="Keep at most N_n configurations per level, drawn without replacement (Algorithm 1).")
-@click.option("--sigma", type=float, default=1.0, show_default=True,
+@click.option("--sigma", type=FINITE, default=1.0, show_default=True,
               help="Width of the Gaussian weight on the radius of gyration, in module pitches.")
 @click.option("--scheme", default="compact", show_default=True,
               help="Sampling weights: compact (the paper's: near the smallest radius of gyration), uniform or "
                    "spread (near the largest).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the sampling.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed of the sampling.")
 @click.option("--out", "out", default=None, metavar="FILE",
               help="Write the configurations of every level (.json: readable codes; .npz: compact arrays).")
 @click.option("--draw", "draw", default=None, metavar="FILE.png",
@@ -54,15 +54,22 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
         table.add_column(col, justify="right")
     with progress_bar(console) as progress:
         task = progress.add_task("enumerating levels", total=n)
-        for level in enumerate_levels(n, symmetry, sampling):
-            levels.append(level)
-            progress.advance(task)
-            row = {"n": level.n, "available": level.available, "non_isomorphic": level.non_isomorphic,
-                   "kept": level.kept, "cpu_s": round(level.cpu_s, 4), "peak_rss_mb": round(level.peak_rss_mb, 1)}
-            if as_json:
-                click.echo(json.dumps(row))
-            else:
-                table.add_row(*(str(v) for v in row.values()))
+        try:
+            for level in enumerate_levels(n, symmetry, sampling):
+                levels.append(level)
+                progress.advance(task)
+                row = {"n": level.n, "available": level.available, "non_isomorphic": level.non_isomorphic,
+                       "kept": level.kept, "cpu_s": round(level.cpu_s, 4), "peak_rss_mb": round(level.peak_rss_mb, 1)}
+                if as_json:
+                    click.echo(json.dumps(row))
+                else:
+                    table.add_row(*(str(v) for v in row.values()))
+        except KeyboardInterrupt:  # Ctrl-C: the finished levels (printed as they came with --json), then exit 130
+            if not as_json:
+                Console().print(table)
+            done = f"; levels 1 to {len(levels)} are complete" if levels else ""
+            click.echo(f"groundstation: enumeration stopped in level {len(levels) + 1}{done}", err=True)
+            raise
         if out_path is not None:
             total = sum(lv.kept for lv in levels) if out_path.suffix == ".json" else None
             wtask = progress.add_task(f"writing {out_path.name}", total=total)

@@ -12,12 +12,18 @@ from rich.live import Live
 from rich.table import Table
 
 from groundstation.backend_kinds import KINDS, load
-from groundstation.cli.common import json_safe, sim_physics_hz, stderr_console, writable_output
+from groundstation.cli.common import FINITE, FiniteFloat, json_safe, sim_physics_hz, stderr_console, writable_output
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
 
 EXIT_EMERGENCY = 1
+"""A failsafe landing, an emergency stop, a flight that did not start (refused arming, the operator before
+arming), or a log writer that failed or hung."""
+EXIT_DEGRADED = 3
+"""The flight landed as planned (or as the operator asked) but degraded beyond its bounds
+(:class:`~groundstation.runtime.flight.QualityBounds`: attitude error, rotor saturation, late periods); the summary
+names what. Bad input is 2 (:mod:`groundstation.cli`)."""
 STATUS_S = 0.2
 """Status line refresh interval, s."""
 
@@ -42,7 +48,7 @@ def status_text(s, width: int) -> str:
 
 @click.command("fly")
 @click.argument("flight", type=click.Path(dir_okay=False))
-@click.option("--duration", type=float, default=None, help="Override the tracking time, s.")
+@click.option("--duration", type=FINITE, default=None, help="Override the tracking time, s.")
 @click.option("--log", "log", default=None, metavar="FILE.mcap", help="Log here instead of the config's log_dir.")
 @click.option("--json", "as_json", is_flag=True, help="Print the flight's metrics as one JSON object.")
 @click.option("--live", "live_port", type=click.IntRange(1024, 65535), default=None, metavar="PORT",
@@ -50,8 +56,10 @@ def status_text(s, width: int) -> str:
 def fly_command(flight: str, duration: float | None, log: str | None, as_json: bool, live_port: int | None) -> int:
     """Fly a flight config: connect, preflight, arm, take off, track, land.
 
-    Ctrl-C (or l) lands; a second Ctrl-C (or k) stops the motors at once."""
-    from groundstation.runtime.flight import Requests
+    Ctrl-C (or l) lands; a second Ctrl-C (or k) stops the motors at once. Exit status: 0 landed as planned or as
+    asked, 1 failsafe, emergency stop, not started or the log failed, 2 bad input (an existing --log included),
+    3 landed but degraded beyond the flight's bounds."""
+    from groundstation.runtime.flight import Requests, operator_landing
     from groundstation.runtime.fly import fly
 
     log_path = writable_output(log, (".mcap",)) if log else None
@@ -96,8 +104,8 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         if live is not None:
             renderer.join(2.0)
             live.stop()
-    summary = {"phase": result.phase, "reason": result.reason, "log": str(result.log_path),
-               **asdict(result.metrics)}
+    summary = {"phase": result.phase, "reason": result.reason, "degraded": list(result.degraded),
+               "log": str(result.log_path), **asdict(result.metrics)}
     if as_json:
         click.echo(json.dumps(json_safe(summary)))
     else:
@@ -106,22 +114,30 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
                   "max_roll_error_deg", "max_motor_fraction"):
             v = summary[k]
             table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+        if result.degraded:
+            table.add_row("degraded", "; ".join(result.degraded))
         loop = result.metrics.loop
         if loop is not None:
             table.add_row("loop", f"{loop.rate_hz:.0f} Hz, p99 start error {loop.start_error_ms_p99:.3f} ms, "
                                   f"{loop.overruns} overruns")
         Console().print(table)
     click.echo(f"log: {result.log_path}", err=True)
+    if result.log_rejected:
+        click.echo("groundstation: warning: messages the log writer rejected (counted, not written): " +
+                   "; ".join(f"{k}: {n}" for k, n in result.log_rejected.items()), err=True)
     if result.log_error is not None:
         click.echo(f"groundstation: the log writer failed: {result.log_error} (what was written reads with "
                    f"groundstation replay, or log recover)", err=True)
-    if result.phase == Phase.DONE and result.reason in ("", "operator land") and result.log_error is not None:
-        return EXIT_EMERGENCY
     if not result.nominal:
-        what = {Phase.ABORTED: "did not start", Phase.DONE: "landed early"}.get(result.phase,
-                                                                              f"ended in {result.phase}")
-        click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)
+        if result.log_error is None or result.phase != Phase.DONE or not (result.reason == "" or
+                                                                           operator_landing(result.reason)):
+            what = {Phase.ABORTED: "did not start", Phase.DONE: "landed early"}.get(result.phase,
+                                                                                  f"ended in {result.phase}")
+            click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)
         return EXIT_EMERGENCY
+    if result.degraded:
+        click.echo(f"groundstation: the flight degraded beyond its bounds: {'; '.join(result.degraded)}", err=True)
+        return EXIT_DEGRADED
     return 0
 
 
@@ -134,16 +150,21 @@ def log_group() -> None:
 @click.argument("src", type=click.Path(dir_okay=False, exists=False))
 @click.argument("dst", type=click.Path(dir_okay=False))
 def recover_command(src: str, dst: str) -> int:
-    """Copy every complete record of a truncated MCAP (e.g. after SIGKILL) into a finalized file."""
+    """Copy every intact record of a truncated or damaged MCAP (after SIGKILL, a bad disk) into a finalized file,
+    and say what was dropped."""
     from pathlib import Path
 
     from groundstation.errors import UsageError
     from groundstation.flightlog.mcap_log import recover
+    from groundstation.output import writing
 
     if not Path(src).is_file():
         raise UsageError(f"{src}: file not found")
     out = writable_output(dst, (".mcap",))
-    counts = recover(src, out)
+    with writing(out):
+        counts = recover(src, out)
+    for line in counts["warnings"]:
+        click.echo(f"groundstation: warning: {src}: {line}", err=True)
     click.echo(json.dumps(counts))
     click.echo(f"recovered: {out}", err=True)
     return 0 if counts["messages"] > 0 else 1
@@ -157,17 +178,21 @@ def recover_command(src: str, dst: str) -> int:
 @click.option("--key-prefix", default="mocap", show_default=True)
 @click.option("--y-up", is_flag=True, help="Convert a y-up stream (OptiTrack default) to z-up.")
 @click.option("--mock-bodies", default="", help='Mock system bodies, e.g. "a(0,0,1,1,0,0,0)" (x,y,z,qw,qx,qy,qz).')
-@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+@click.option("--duration", type=FiniteFloat(min=0, min_open=True), default=None,
+              help="Stop after this many seconds.")
 @click.option("--tls-ca", default=None, type=click.Path(dir_okay=False, exists=True),
               help="TLS: the lab CA (PEM); the endpoint is then tls/HOST:PORT.")
 @click.option("--tls-cert", default=None, type=click.Path(dir_okay=False, exists=True),
               help="TLS: this bridge's certificate (PEM), for mutual TLS.")
 @click.option("--tls-key", default=None, type=click.Path(dir_okay=False, exists=True),
               help="TLS: this bridge's private key (PEM).")
+@click.option("--key-file", default=None, type=click.Path(dir_okay=False),
+              help="Authenticate every pose with this key (groundstation mocap-key; the flight's mocap.key_file).")
 def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key_prefix: str, y_up: bool,
                          mock_bodies: str, duration: float | None, tls_ca: str | None, tls_cert: str | None,
-                         tls_key: str | None) -> int:
+                         tls_key: str | None, key_file: str | None) -> int:
     """Publish motion-capture poses on Zenoh (foxglove.PoseInFrame on <prefix>/<body>/pose)."""
+    from groundstation.mocap.auth import load_key_file
     from groundstation.mocap.bridge import run_bridge
     from groundstation.mocap.zenoh_link import Security
 
@@ -175,8 +200,9 @@ def mocap_bridge_command(system: str, host: str, bodies: str, endpoint: str, key
         raise UsageError("--tls-cert and --tls-key go together")
     security = Security(tls_ca, tls_cert, tls_key, mutual=tls_cert is not None) if tls_ca else None
     names = [b.strip() for b in bodies.split(",") if b.strip()]
+    mac_key = load_key_file(key_file) if key_file else None
     stats = run_bridge(system, host, names, endpoint, key_prefix, y_up=y_up, mock_bodies=mock_bodies,
-                       duration=duration, security=security)
+                       duration=duration, security=security, mac_key=mac_key)
     click.echo(json.dumps({"frames": stats.frames, "published": stats.published, "missing": stats.missing}))
     return 0
 
@@ -194,7 +220,7 @@ PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
 @click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
               help="Zenoh endpoint the virtual mocap listens on.")
 @click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
-@click.option("--physics-hz", type=float, default=None,
+@click.option("--physics-hz", type=FiniteFloat(min=1, max=10000), default=None,
               help="Physics rate, Hz (default: the simulator's; 1000 with --firmware).")
 @click.option("--platform", type=click.Choice(["cf2", "cf21bl", "bolt"]), default="bolt", show_default=True,
               help="crtp: the Crazyflie platform simulated (bolt and cf21bl must be asked to arm; cf2 arms itself).")
@@ -209,10 +235,13 @@ PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
 @click.option("--state-dir", type=click.Path(file_okay=False), default=None,
               help="--firmware: where the modules keep their stored parameters and console logs (default: a "
                    "temporary directory; give one to keep stored parameters across runs).")
-@click.option("--duration", type=float, default=None, help="Stop after this many seconds.")
+@click.option("--duration", type=FiniteFloat(min=0, min_open=True), default=None,
+              help="Stop after this many seconds.")
+@click.option("--mocap-key-file", default=None, type=click.Path(dir_okay=False),
+              help="Authenticate the simulated mocap's poses with this key (the flight's mocap.key_file).")
 def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, body: str, physics_hz: float | None,
                      platform: str, stock_firmware: bool, param_file: str | None, firmware_binary: str | None,
-                     state_dir: str | None, duration: float | None) -> int:
+                     state_dir: str | None, duration: float | None, mocap_key_file: str | None) -> int:
     """Simulate an assembly's modules behind their wire protocol on loopback UDP, with its pose on Zenoh.
 
     Fly it with a config whose backend is crazyflie (modules udp://127.0.0.1:PORT, PORT+1, ...) or mavlink
@@ -222,6 +251,7 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
 
     from groundstation.assembly.assembly_file import load_assembly
     from groundstation.firmware.params import load_param_file
+    from groundstation.mocap.auth import load_key_file
     from groundstation.mocap.zenoh_link import pose_key
     from sim.module_peer import PeerConfig
 
@@ -240,7 +270,9 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
         physics_hz = physics_hz or FIRMWARE_PHYSICS_HZ
     peer = peer_class(asm, PeerConfig(port=port, mocap_endpoint=endpoint, mocap_key=pose_key("mocap", body),
                                       physics_hz=physics_hz or sim_physics_hz(), params=params, platform=platform,
-                                      motor_app=not stock_firmware), **extra)
+                                      motor_app=not stock_firmware,
+                                      mocap_mac_key=load_key_file(mocap_key_file) if mocap_key_file else None),
+                      **extra)
     try:
         peer.open()
     except (OSError, ValueError) as exc:  # port taken; a parameter these modules do not have

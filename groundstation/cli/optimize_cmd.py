@@ -8,7 +8,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import json_safe, writable_output
+from groundstation.cli.common import SEED, FiniteFloat, FloatList, json_safe, writable_output
 from groundstation.errors import TopologyError, UsageError
 
 EXIT_INFEASIBLE = 1
@@ -19,17 +19,17 @@ EXIT_INFEASIBLE = 1
 @click.option("--topology", "code", required=True, help="Topology code, e.g. oE or oS(W)E (see 'enumerate --out').")
 @click.option("--modules", "modules", default=None, type=click.Path(dir_okay=False),
               help="Module parameter file (default: the paper's Table II).")
-@click.option("--starts", "starts", default=None,
-              help="Multi-start: tilt of the outermost module of each starting bowl, degrees, e.g. 20,10,30,5 "
-                   "(0 = flat start). Default: chosen by size.")
+@click.option("--starts", "starts", type=FloatList(FiniteFloat(-90, 90)), default=None,
+              help="Multi-start: tilt of the outermost module of each starting bowl, degrees in [-90, 90], e.g. "
+                   "20,10,30,5 (0 = flat start). Default: chosen by size.")
 @click.option("--max-starts", type=click.IntRange(min=1), default=None,
               help="Start budget (default: by size, see README). Stops earlier once two starts agree on the best.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the random starts.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random starts.")
 @click.option("--fixed-yaw", is_flag=True, help="Do not optimize the body yaw (the paper's formulation).")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the assembly file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object.")
-def optimize_command(tasks: str, code: str, modules: str | None, starts: str, max_starts: int | None, seed: int,
-                     fixed_yaw: bool, out: str | None, as_json: bool) -> int:
+def optimize_command(tasks: str, code: str, modules: str | None, starts: tuple[float, ...] | None,
+                     max_starts: int | None, seed: int, fixed_yaw: bool, out: str | None, as_json: bool) -> int:
     """Optimize connector angles and inputs of one configuration for a task's wrench set."""
     from groundstation.assembly.assembly_file import save_assembly
     from groundstation.assembly.module import ModuleParams, load_module_params
@@ -42,14 +42,10 @@ def optimize_command(tasks: str, code: str, modules: str | None, starts: str, ma
         topo = Topology.from_code(code)
     except TopologyError as exc:
         raise UsageError(f"--topology: {exc}") from None
-    try:
-        rims = tuple(float(f) for f in starts.split(",")) if starts else None
-    except ValueError:
-        raise UsageError(f"--starts: expected comma-separated degrees, got {starts!r}") from None
     params = load_module_params(modules) if modules else ModuleParams()
     task = load_task(tasks)
     wrenches, weights = task.wrenches_for(topo.n, params)
-    opts = SolverOptions(rim_tilts_deg=rims, free_yaw=not fixed_yaw, max_starts=max_starts, seed=seed)
+    opts = SolverOptions(rim_tilts_deg=starts or None, free_yaw=not fixed_yaw, max_starts=max_starts, seed=seed)
     design = optimize(topo, params, wrenches, weights, opts)
     record = design.record(task.name)
     if out_path is not None:

@@ -11,7 +11,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import json_safe, progress_bar, stderr_console, writable_output
+from groundstation.cli.common import FINITE, json_safe, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
 ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_rmse_m", "position RMSE (m)"),
@@ -40,8 +40,8 @@ def _cell(v) -> str:
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON (one object per log).")
 @click.option("--plot", default=None, metavar="FILE.png", help="Write the Fig. 9-style figure, logs overlaid.")
 @click.option("--csv", "csv_dir", default=None, metavar="DIR", help="Write each log's periods and events as CSV.")
-@click.option("--from", "t_from", type=float, default=None, help="Start of the window, flight time s.")
-@click.option("--to", "t_to", type=float, default=None, help="End of the window, flight time s.")
+@click.option("--from", "t_from", type=FINITE, default=None, help="Start of the window, flight time s.")
+@click.option("--to", "t_to", type=FINITE, default=None, help="End of the window, flight time s.")
 @click.option("--rerun", is_flag=True, help="Feed the logged states through this code's controller and "
               "allocation and report how far the commands differ from the logged ones.")
 @click.option("--rerun-with", "rerun_with", default=None, metavar="FLIGHT.toml",
@@ -49,7 +49,8 @@ def _cell(v) -> str:
 def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_dir: str | None,
                    t_from: float | None, t_to: float | None, rerun: bool, rerun_with: str | None) -> int:
     """Analyse flight logs: tracking against the setpoint, attitude against its targets, loop timing, mocap,
-    motors, battery, link, and every event. Several logs are compared side by side."""
+    motors, battery, link, and every event. Several logs are compared side by side. A damaged chunk or record is
+    skipped with a warning naming it, and the rest analysed."""
     from groundstation.replay.analysis import analyse
 
     plot_path = writable_output(plot, (".png", ".svg", ".pdf")) if plot else None
@@ -72,6 +73,9 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
             replays.append(analyse(path, t_from, t_to, rerun or rerun_with is not None, gains, allocation,
                                    progress=lambda f, task=task: bar.update(task, completed=f)))
             bar.update(task, completed=1.0)
+    for r in replays:  # damage is skipped, the rest analysed: the operator is told what was skipped
+        for line in r.warnings:
+            click.echo(f"groundstation: warning: {r.path.name}: {line}", err=True)
     if csv_dir is not None:
         from groundstation.replay.export import export_csv
 
@@ -84,7 +88,8 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
         plot_replays(replays, plot_path)
         click.echo(f"plot: {plot_path}", err=True)
     if as_json:
-        objs = [json_safe({"log": str(r.path), "complete": r.complete, **asdict(r.metrics),
+        objs = [json_safe({"log": str(r.path), "complete": r.complete, "warnings": list(r.warnings),
+                           **asdict(r.metrics),
                            "events": [{"t": t, "level": level, "text": text} for t, level, text in r.events],
                            "timeline": [{"t": t, "phase": p} for t, p in r.timeline],
                            **({"rerun": asdict(r.rerun)} if r.rerun is not None else {})}) for r in replays]
@@ -93,7 +98,7 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
     table = Table(title="flight logs")
     table.add_column("")
     for r in replays:
-        table.add_column(r.path.name + ("" if r.complete else " (cut short)"))
+        table.add_column(r.path.name + ("" if r.complete else " (damaged)" if r.warnings else " (cut short)"))
     for key, label in ROWS:
         table.add_row(label, *(_cell(getattr(r.metrics, key)) for r in replays))
     if any(r.rerun is not None for r in replays):

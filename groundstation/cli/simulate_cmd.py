@@ -4,27 +4,35 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
+from pathlib import Path
 
 import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import json_safe, sim_physics_hz, writable_output
-from groundstation.errors import UsageError
+from groundstation.cli.common import FINITE, json_safe, sim_physics_hz, writable_output
+from groundstation.errors import ConfigError, UsageError
 
 EXIT_CRASHED = 1
+
+OPTIONS = {"trajectory.kind": "--trajectory", "trajectory.duration": "--duration", "trajectory.height": "--height",
+           "trajectory.size": "--size", "trajectory.period": "--period", "trajectory.roll_deg": "--roll",
+           "rate_hz": "--control-hz", "backend.physics_hz": "--physics-hz", "allocation": "--allocation"}
+"""The flight-config key each option sets: the options are checked as a flight config is (the same bounds)."""
+NOISE = {"position_noise": 1e-3, "attitude_noise_deg": 0.2, "latency_s": 5e-3}
+"""``--noise``: mocap-like noise (m, deg) and latency (s)."""
 
 
 @click.command("simulate")
 @click.argument("assembly", type=click.Path(dir_okay=False))
 @click.option("--trajectory", default="figure8", show_default=True, help="hover, circle or figure8.")
-@click.option("--duration", type=float, default=16.0, show_default=True, help="Tracking time, s.")
-@click.option("--height", type=float, default=1.0, show_default=True, help="Mean flight height h0, m.")
-@click.option("--size", type=float, default=0.6, show_default=True, help="Figure-8 l0 or circle radius, m.")
-@click.option("--period", type=float, default=8.0, show_default=True, help="Figure-8 t_c or circle period, s.")
-@click.option("--roll", type=float, default=0.0, show_default=True, help="Attitude target roll, degrees.")
-@click.option("--control-hz", type=float, default=250.0, show_default=True)
-@click.option("--physics-hz", type=float, default=sim_physics_hz, help="Physics rate, Hz (default: the simulator's).")
+@click.option("--duration", type=FINITE, default=16.0, show_default=True, help="Tracking time, s.")
+@click.option("--height", type=FINITE, default=1.0, show_default=True, help="Mean flight height h0, m.")
+@click.option("--size", type=FINITE, default=0.6, show_default=True, help="Figure-8 l0 or circle radius, m.")
+@click.option("--period", type=FINITE, default=8.0, show_default=True, help="Figure-8 t_c or circle period, s.")
+@click.option("--roll", type=FINITE, default=0.0, show_default=True, help="Attitude target roll, degrees.")
+@click.option("--control-hz", type=FINITE, default=250.0, show_default=True)
+@click.option("--physics-hz", type=FINITE, default=sim_physics_hz, help="Physics rate, Hz (default: the simulator's).")
 @click.option("--allocation", default="clip", show_default=True, help="clip (paper) or bounded (saturation-aware).")
 @click.option("--noise", is_flag=True, help="Add mocap-like noise (1 mm, 0.2 deg) and 5 ms latency.")
 @click.option("--realtime", is_flag=True, help="Pace to the wall clock instead of lockstep.")
@@ -37,27 +45,26 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
     """Take off, track a trajectory and land, in PyBullet."""
     import numpy as np
 
-    from groundstation.assembly.assembly_file import load_assembly
     from groundstation.control.geometric import Gains
     from groundstation.control.trajectory import FlightPlan, make_track
     from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
     from sim.pybullet_backend import PyBulletBackend, SimConfig
 
     plot_path = writable_output(plot, (".png", ".svg", ".pdf")) if plot else None
-    if allocation not in ("clip", "bounded"):
-        raise UsageError(f"unknown allocation {allocation!r}; choose clip or bounded")
-    for name, value in (("--duration", duration), ("--period", period), ("--control-hz", control_hz),
-                        ("--physics-hz", physics_hz), ("--size", size)):
-        if not value > 0:
-            raise UsageError(f"{name} must be positive, got {value}")
-    asm, _ = load_assembly(assembly)
-    track = make_track(trajectory, duration, height, size, period, roll)
-    cfg = SimConfig(physics_hz=physics_hz, realtime=realtime, gui=gui,
-                    position_noise=1e-3 if noise else 0.0, attitude_noise=np.radians(0.2) if noise else 0.0,
-                    latency=5e-3 if noise else 0.0)
-    with PyBulletBackend(asm, cfg) as backend:
+    cfg, asm = _checked(assembly, {
+        "assembly": assembly, "rate_hz": control_hz, "allocation": allocation,
+        "backend": {"kind": "sim", "physics_hz": physics_hz}, "mocap": NOISE if noise else {},
+        "trajectory": {"kind": trajectory, "duration": duration, "height": height, "size": size, "period": period,
+                       "roll_deg": roll}})
+    t, m = cfg.trajectory, cfg.mocap
+    track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
+    mocap = dict(position_noise=m.position_noise, attitude_noise=np.radians(m.attitude_noise_deg),
+                 latency=m.latency_s) if noise else {}
+    sim = SimConfig(physics_hz=cfg.backend.physics_hz, realtime=realtime, gui=gui, **mocap)
+    with PyBulletBackend(asm, sim) as backend:
         plan = FlightPlan(ground=tuple(backend.start_position), track=track)
-        rec = fly_simulated(asm, plan, backend, Gains(), control_hz, allocation, FlightVolume())
+        rec = fly_simulated(asm, plan, backend, Gains(**asdict(cfg.gains)), cfg.rate_hz, cfg.allocation,
+                            FlightVolume())
     metrics = asdict(rec.metrics) | dict(assembly=assembly, trajectory=trajectory, n=asm.n,
                    controllable_dof=asm.controllable_dof, crash_reason=rec.crash_reason)
     if plot_path is not None:
@@ -78,3 +85,27 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
         click.echo(f"groundstation: the flight failed: {rec.crash_reason}", err=True)
         return EXIT_CRASHED
     return 0
+
+
+def _checked(assembly: str, options: dict):
+    """The options as a flight config and the assembly, every number within the bounds a flight config has
+    (:func:`~groundstation.runtime.flight_config.bound_issues`); a value beyond one is a UsageError naming the
+    option (the gains, fixed here, name the loop rate that cannot realise them)."""
+    from groundstation import config
+    from groundstation.runtime.flight_config import FlightConfig, bound_issues, read_assembly
+
+    physics_hz, control_hz = options["backend"]["physics_hz"], options["rate_hz"]
+
+    def option(key: str) -> str:
+        if key.startswith("gains."):
+            return OPTIONS["backend.physics_hz" if physics_hz < control_hz else "rate_hz"]
+        return OPTIONS.get(key, key)
+
+    try:
+        cfg = config.validate(FlightConfig, options)
+    except ConfigError as exc:
+        raise UsageError(f"{option(exc.key)}: {str(exc).removeprefix(f'{exc.key}: ')}") from None
+    asm = read_assembly(Path(assembly))
+    for key, problem in bound_issues(cfg, asm.inertia):
+        raise UsageError(f"{option(key)}: {problem}")
+    return cfg, asm

@@ -22,6 +22,7 @@ import numpy as np
 from groundstation.assembly.topology import Topology
 from groundstation.design.enumeration import Level, SamplingPolicy
 from groundstation.errors import ConfigError, TopologyError
+from groundstation.output import writing
 
 FORMAT = "groundstation.candidates/1"
 SUFFIXES = (".json", ".npz")
@@ -41,7 +42,8 @@ class CandidateSet:
 
 def write_candidates(path: str | Path, levels: list[Level], symmetry: str,
                      sampling: SamplingPolicy | None, progress=None) -> None:
-    """Write ``levels`` to ``path`` (``.json`` or ``.npz``). ``progress(k)`` is called per topology for JSON."""
+    """Write ``levels`` to ``path`` (``.json`` or ``.npz``). ``progress(k)`` is called per topology for JSON. A write
+    that fails (a full disk) is a :class:`~groundstation.errors.UsageError` naming the file."""
     p = Path(path)
     meta = {
         "format": FORMAT,
@@ -55,7 +57,7 @@ def write_candidates(path: str | Path, levels: list[Level], symmetry: str,
             arrays[f"n{lv.n}_cells_x"] = lv.cells_x
             arrays[f"n{lv.n}_cells_y"] = lv.cells_y
             arrays[f"n{lv.n}_parent"] = lv.parent
-        with p.open("wb") as fh:
+        with writing(p), p.open("wb") as fh:
             np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
         return
     for entry, lv in zip(meta["levels"], levels, strict=True):
@@ -65,7 +67,8 @@ def write_candidates(path: str | Path, levels: list[Level], symmetry: str,
             if progress is not None:
                 progress(1)
         entry["topologies"] = codes
-    p.write_text(json.dumps(meta, indent=1) + "\n")
+    with writing(p):
+        p.write_text(json.dumps(meta, indent=1) + "\n")
 
 
 def read_candidates(path: str | Path) -> CandidateSet:

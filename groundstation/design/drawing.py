@@ -12,6 +12,7 @@ from pathlib import Path
 
 from groundstation.assembly.lattice import DIRECTIONS
 from groundstation.assembly.topology import BLOCKED, CONNECTED, FREE, Topology
+from groundstation.output import save_figure
 
 COLOURS = {CONNECTED: "#1f5fbf", BLOCKED: "#e8b70f", FREE: "#9a9a9a"}
 MAX_DRAWN = 1000
@@ -71,7 +72,4 @@ def draw_level(topologies: Sequence[Topology], path: str | Path, title: str) -> 
             ax.axis("off")
     fig.suptitle(title)
     fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)

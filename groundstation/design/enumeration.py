@@ -19,6 +19,7 @@ import numpy as np
 from groundstation.assembly.lattice import group_matrices
 from groundstation.assembly.topology import Topology
 from groundstation.design import kernels
+from groundstation.design.interrupt import run_interruptible
 from groundstation.errors import UsageError
 
 Scheme = Literal["compact", "uniform", "spread"]
@@ -120,6 +121,8 @@ def enumerate_levels(
     """Yield levels ``n = 1 .. n_max``; exhaustive unless ``sampling`` is given.
 
     ``on_level`` is called after each level (for progress display). Memory is that of two levels at a time.
+    The kernels run on a worker thread (:func:`~groundstation.design.interrupt.run_interruptible`): Ctrl-C stops
+    the enumeration at once with ``KeyboardInterrupt``, the levels yielded before it complete.
     """
     if n_max < 1:
         raise UsageError(f"number of modules must be at least 1, got {n_max}")
@@ -139,9 +142,7 @@ def enumerate_levels(
         if n > 1:
             t0 = time.process_time()
             hint = int(level.kept * 2 * n / len(mats)) + 16
-            available, _codes, src = kernels.expand_level(level.cells_x, level.cells_y, level.parent, mats, hint)
-            del _codes
-            cx, cy, par = kernels.materialize_children(level.cells_x, level.cells_y, level.parent, src, mats)
+            available, cx, cy, par = run_interruptible(_grow, level.cells_x, level.cells_y, level.parent, mats, hint)
             distinct = cx.shape[0]
             if sampling is not None and distinct > sampling.keep:
                 assert rng is not None
@@ -157,18 +158,25 @@ def enumerate_levels(
         yield level
 
 
+def _grow(cells_x: np.ndarray, cells_y: np.ndarray, parent: np.ndarray, mats: np.ndarray, hint: int):
+    """The next level of a level's configurations: ``(available, cells_x, cells_y, parent)`` of its distinct
+    children, in canonical placement (both kernels, on one worker thread)."""
+    available, _codes, src = kernels.expand_level(cells_x, cells_y, parent, mats, hint)
+    del _codes
+    return (available, *kernels.materialize_children(cells_x, cells_y, parent, src, mats))
+
+
 _compiled = False
 
 
 def compile_kernels() -> None:
     """Compile or load the kernels once, outside any timed level. numba caches the machine code on disk next to
-    the sources: the first run on a machine compiles (7-12 s), later ones load it (0.3 s)."""
+    the sources: the first run on a machine compiles (7-12 s), later ones load it (0.3 s); on a worker thread,
+    so Ctrl-C stops it at once too."""
     global _compiled
     if not _compiled:
         one = np.zeros((1, 1), np.int16)
-        mats = group_matrices("C4")
-        _avail, _codes, src = kernels.expand_level(one, one, np.full((1, 1), -1, np.int16), mats, 16)
-        kernels.materialize_children(one, one, np.full((1, 1), -1, np.int16), src, mats)
+        run_interruptible(_grow, one, one, np.full((1, 1), -1, np.int16), group_matrices("C4"), 16)
         _compiled = True
 
 

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.optimize import linprog
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.output import save_figure
 
 
 def _plt():
@@ -56,10 +57,7 @@ def plot_assembly(assembly: Assembly, path: str | Path, title: str = "") -> Path
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
     ax.set_title(title or f"{assembly.n} modules: {assembly.topology.code}")
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)
 
 
 def plot_costs(rows: list[dict], n: int, path: str | Path) -> Path:
@@ -72,10 +70,7 @@ def plot_costs(rows: list[dict], n: int, path: str | Path) -> Path:
     ax.set_ylabel("J_cost ((rad/s)^4)")
     ax.set_title(f"Feasible configurations with {n} modules ({len(feas)} of {sum(r['n'] == n for r in rows)})")
     fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)
 
 
 def force_polytope(assembly: Assembly, directions: int = 300) -> np.ndarray:
@@ -129,7 +124,4 @@ def plot_polytope(assembly: Assembly, forces: np.ndarray, path: str | Path) -> P
     ax.set_ylabel("F_y (N)")
     ax.set_zlabel("F_z (N)")
     ax.set_title(f"Force polytope at zero torque, {assembly.n} modules")
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)

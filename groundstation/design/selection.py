@@ -27,6 +27,7 @@ from groundstation.design.enumeration import SamplingPolicy, enumerate_levels
 from groundstation.design.optimize import SolverOptions, Verification, optimize
 from groundstation.design.task import Task
 from groundstation.errors import ConfigError
+from groundstation.output import writing
 
 
 @dataclass(frozen=True)
@@ -245,7 +246,7 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
             for row, record in runner.map(todo, task, params, opts):
                 level.append((row, record))
                 if path is not None:
-                    with path.open("a") as fh:  # one line per finished candidate, flushed at once
+                    with writing(path), path.open("a") as fh:  # one line per finished candidate, flushed at once
                         fh.write(json.dumps({"row": asdict(row), "record": record if row.feasible else None}) + "\n")
                 if on_result is not None:
                     on_result(row)

@@ -12,6 +12,7 @@ firmware is flashed.
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 from pathlib import Path
 
@@ -67,6 +68,32 @@ class _RepeatingCrazyflie(Crazyflie):
     def _start_connection_setup(self):
         self.link.needs_resending = True
         super()._start_connection_setup()
+
+
+class _Unparsed(logging.Filter):
+    """Counts, and keeps off the terminal, the tracebacks cflib logs when a packet breaks one of its callbacks:
+    a link that is not a Crazyflie's (a PX4 module speaking MAVLink answered with thousands of them)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().startswith("Exception while doing callback"):
+            self.count += 1
+            return False
+        return True
+
+
+@contextlib.contextmanager
+def _counting_unparsed():
+    unparsed = _Unparsed()
+    log = logging.getLogger("cflib.crazyflie")
+    log.addFilter(unparsed)
+    try:
+        yield unparsed
+    finally:
+        log.removeFilter(unparsed)
 
 
 def _connect(uri: str, timeout: float, cache: str | None) -> tuple[Crazyflie | None, str]:
@@ -134,11 +161,15 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
         toc_cache.mkdir(parents=True, exist_ok=True)
         cache = str(toc_cache)
     cf, why = None, ""
-    for _ in range(ATTEMPTS):
-        cf, why = _connect(uri, timeout, cache)
-        if cf is not None:
-            break
+    with _counting_unparsed() as unparsed:
+        for _ in range(ATTEMPTS):
+            cf, why = _connect(uri, timeout, cache)
+            if cf is not None or unparsed.count:
+                break  # answered, or by something that is not a Crazyflie: no use asking again
     if cf is None:
+        if unparsed.count:
+            why = (f"not a Crazyflie on this link: it sends packets cflib cannot parse ({unparsed.count}; a MAVLink "
+                   f"module?)")
         return [ParamCheck(module, uri, n, v, None, note=why, unreachable=True) for n, v in wanted.items()]
     values = _Values()
     try:

@@ -26,12 +26,16 @@ Robustness: chunks are small (32 KiB) and the file is flushed about once a secon
 finishes the file (summary, footer) and is called on normal exit, Ctrl-C and SIGTERM. If the flight process is
 killed (SIGKILL), the writer sees its pipe close and finishes the file itself, losing only what had not been fed
 to it yet (under one control period). If both are killed, every complete chunk is on disk and :func:`recover`
-reads the file with a streaming reader and writes a finalized copy.
+reads the file with :class:`~groundstation.flightlog.salvage.LogScan` and writes a finalized copy. Every chunk
+carries a CRC of its records and the data section one of its own (``enable_data_crcs``), so damage on the disk
+(a flipped bit) is found when the file is read, not analysed or copied as if it were data.
 """
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
 import json
 import os
 import pickle
@@ -39,6 +43,7 @@ import select
 import struct
 import subprocess
 import sys
+import termios
 import threading
 import time
 from collections import deque
@@ -50,11 +55,12 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.errors import UsageError
+from groundstation.flightlog.salvage import LogScan
 from groundstation.flightlog.scene import module_transforms, scene
 from groundstation.flightlog.schemas import schema_of
 from groundstation.loop_activity import LoopActivity
@@ -104,12 +110,69 @@ def _with_attitudes(data):
     return out
 
 
+MAX_NS = 2**64 - 1
+"""MCAP times are unsigned 64-bit nanoseconds since the epoch (up to the year 2554)."""
+
+
+def stamp_ns(t) -> int | None:
+    """``t`` (s since the epoch) as an MCAP time (ns), or None if it is not one: NaN, infinite, negative, or beyond
+    2^64 ns (a stamp in milliseconds, 1.7e12, is one)."""
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        return None
+    if not 0.0 <= t < 2**64 / 1e9:  # NaN compares false
+        return None
+    ns = int(t * 1e9)
+    return ns if ns <= MAX_NS else None
+
+
 def _stamp(t: float) -> Timestamp:
+    """``t`` as a protobuf Timestamp; the epoch for a value that is not a time (the writer rejects the message's log
+    time then: building the message must not raise in the flight process)."""
+    if stamp_ns(t) is None:
+        return Timestamp()
     return Timestamp(seconds=int(t), nanos=int((t % 1) * 1e9))
 
 
+def claim(path: str | Path) -> None:
+    """Create ``path`` empty, exclusively (``O_EXCL``): of two processes claiming one path only one succeeds, the
+    other gets :class:`FileExistsError`; an existing file is never touched. The writer then opens the claimed file
+    (it writes only into an empty one)."""
+    os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644))
+
+
+WRITER_STALL_S = 2.0
+"""The log watchdog's bound: a writer process that takes none of its input for this long while input waits for it
+has hung (its write blocked on a frozen or dead disk, a pipe nobody reads, the process stopped), and
+:attr:`FlightLog.error` says so; the flight, reading it every period, acts on it (``failsafe.on_log_failure``). Seen
+within this plus :data:`WATCH_S` and one control period. A working writer takes what is sent within milliseconds
+(it encodes and hands its writes to the page cache), s."""
+WRITER_START_S = 10.0
+"""The same bound while the writer process starts, before it has taken any input (a Python interpreter importing
+the writer: 0.6 s of CPU, 2.8 s measured on a loaded 2-core machine), s."""
+WATCH_S = 0.1
+"""The feeder samples the writer's progress this often, s."""
+SEND_SLICE = 16 * 1024
+"""A frame goes down the pipe in writes of at most this many bytes, so the watchdog sees the writer take input
+even while the feeder waits on a full pipe (a pipe holds 64 KiB)."""
+
+
+def _unread(fd: int) -> int:
+    """Bytes written into the pipe of ``fd`` that its reader has not taken yet (Linux ``FIONREAD``, either end)."""
+    buf = array.array("i", [0])
+    fcntl.ioctl(fd, termios.FIONREAD, buf, True)
+    return buf[0]
+
+
 class FlightLog:
-    """Thread-safe, non-blocking logger: calls enqueue; a feeder thread hands batches to the writer process."""
+    """Thread-safe, non-blocking logger: calls enqueue; a feeder thread hands batches to the writer process.
+
+    Watchdog: the writer's progress is the bytes it has taken from its pipe (what the feeder wrote, less what the
+    pipe still holds). A writer with input waiting that takes none for :data:`WRITER_STALL_S` has hung, and
+    :attr:`error` says so (the check is a clock read per call; the pipe is sampled every :data:`WATCH_S` by the
+    feeder, between control periods, and by :attr:`error` only once the bound has passed). A hung writer is neither
+    waited for nor killed: if it resumes (a filesystem thawed) it finishes the file with what it was given."""
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
                  activity: LoopActivity | None = None, live_port: int | None = None) -> None:
@@ -118,6 +181,26 @@ class FlightLog:
         # and must not kill the log; the writer ends when its input does, at close or when this process dies.
         self._process = subprocess.Popen([sys.executable, "-m", "groundstation.flightlog.mcap_log"],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+        self._stdin = self._process.stdin.fileno()
+        """Frames are written to this descriptor directly (never through the buffered ``stdin`` object)."""
+        self._written = 0
+        """Bytes the feeder has written into the writer's pipe."""
+        self._sending = False
+        """The feeder is inside a write (it blocks while the pipe is full)."""
+        self._progress = (time.monotonic(), 0)
+        """(when the writer was last seen taking input, or with none waiting for it; the bytes it had taken)."""
+        self._started = False
+        """The writer has taken input: its start is over (:data:`WRITER_START_S` no longer applies)."""
+        self._watched = 0.0
+        self._watch_lock = threading.Lock()
+        self._error: str | None = None
+        self._finished = False
+        """The feeder is done and the pipe closed: nothing left to watch."""
+        self.hung = False
+        """The watchdog found the writer hung (:attr:`error` says for how long)."""
+        self.rejected: dict[str, int] = {}
+        """Messages the writer did not write, by topic and why (``"/mocap/assembly publish time": 3``: a stamp that
+        is not a time, a record that does not encode); known after :meth:`close`."""
         self._send([("open", str(self.path), {"metadata": dict(metadata or {}), "live_port": live_port}, 0.0)])
         # Producers append without waking anyone; the feeder runs between control periods (see LoopActivity).
         self._items: deque = deque()
@@ -126,12 +209,17 @@ class FlightLog:
         self._activity = activity or LoopActivity()
         self._closed = False
         self.dropped = 0
-        self.error: str | None = None
-        """Why the writer failed (None while it works)."""
         self.writer_pid = self._process.pid
         """The writer process (it outlives this one if this one is killed)."""
         self._thread = threading.Thread(target=self._feed, name="mcap-feeder", daemon=True)
         self._thread.start()
+
+    @property
+    def error(self) -> str | None:
+        """Why the writer failed or hung (None while it works). Cheap: read it every control period."""
+        if self._error is None and not self._finished and time.monotonic() - self._progress[0] > self._bound():
+            self._check()
+        return self._error
 
     # -- producer side (any thread) ------------------------------------------------------------------------------
     def protobuf(self, topic: str, message, t: float) -> None:
@@ -169,10 +257,40 @@ class FlightLog:
         self.protobuf("/scene", scene(assembly, t, reference, geofence), t)
 
     def _put(self, item) -> None:
-        if self._closed or self.error is not None:
+        if self._closed or self._error is not None:
             self.dropped += 1  # counted, not kept: a dead writer must not grow the queue for the rest of a flight
             return
         self._items.append(item)
+
+    # -- the watchdog ------------------------------------------------------------------------------------------------
+    def _bound(self) -> float:
+        return WRITER_STALL_S if self._started else WRITER_START_S
+
+    def _watch(self) -> float:
+        """Sample the writer's progress; how long it has had input waiting without taking any, s (0: keeping up)."""
+        now = time.monotonic()
+        with self._watch_lock:
+            try:
+                unread = _unread(self._stdin)  # before the bytes written: a write between the two reads as progress
+            except OSError:  # our end is closed: nothing waits
+                return 0.0
+            taken = self._written - unread
+            at, before = self._progress
+            if taken > before or (unread == 0 and not self._sending):
+                self._progress = (now, max(taken, before))
+                self._started = self._started or taken > 0
+                return 0.0
+            return now - at
+
+    def _check(self) -> None:
+        """Sample the writer's progress; beyond the bound, the writer has hung: say so in :attr:`error`."""
+        if self._finished:
+            return
+        stalled, bound = self._watch(), self._bound()
+        if stalled > bound and self._error is None:
+            self.hung = True
+            self._error = (f"the log writer has taken none of its input for {stalled:.1f} s > {bound:g} s: hung (its "
+                           f"disk frozen or stalled, or the process stopped); it finishes the file if it resumes")
 
     # -- feeder thread ----------------------------------------------------------------------------------------------
     def _feed(self) -> None:
@@ -182,6 +300,9 @@ class FlightLog:
                 if self._process.poll() is not None:  # the writer died (a full disk, a crash, killed)
                     self._writer_gone()
                     return
+                if time.monotonic() - self._watched >= WATCH_S:
+                    self._watched = time.monotonic()
+                    self._check()
                 while self._items and (self._activity.may_work(FEED_BUDGET_S) or self._closed):
                     batch = [self._items.popleft() for _ in range(min(FEED_BATCH, len(self._items)))]
                     self._send(batch)
@@ -189,6 +310,8 @@ class FlightLog:
                         return
         except OSError:  # the writer process is gone
             self._writer_gone()
+        except Exception as exc:  # noqa: BLE001 - e.g. a record that does not pickle: nothing more reaches the file
+            self._error = self._error or f"the log feeder stopped: {type(exc).__name__}: {exc}"
 
     def _writer_gone(self) -> None:
         """Record why the writer stopped (its last words, or its exit) and stop queueing: :attr:`error` is what
@@ -196,36 +319,62 @@ class FlightLog:
         why = ""
         with contextlib.suppress(OSError, ValueError):
             self._process.wait(1.0)
-            why = json.loads(self._process.stdout.read() or b"{}").get("error") or ""
+            why = self._result(self._process.stdout.read())
         code = self._process.poll()
-        self.error = self.error or (why or f"the writer process stopped (exit code {code})")
+        self._error = self._error or (why or f"the writer process stopped (exit code {code})")
         self.dropped += len(self._items)
         self._items.clear()
 
+    def _result(self, out: bytes) -> str:
+        """The writer's last words (``{"error": ..., "rejected": {...}}``): its error ("" if none); keeps the
+        rejections."""
+        try:
+            result = json.loads(out or b"{}")
+        except ValueError:
+            return ""
+        self.rejected = result.get("rejected") or self.rejected
+        return result.get("error") or ""
+
     def _send(self, batch: list) -> None:
         frame = pickle.dumps(batch, protocol=pickle.HIGHEST_PROTOCOL)
-        self._process.stdin.write(_FRAME.pack(len(frame)) + frame)
-        self._process.stdin.flush()
+        data = memoryview(_FRAME.pack(len(frame)) + frame)
+        self._sending = True
+        try:
+            for i in range(0, len(data), SEND_SLICE):
+                piece = data[i:i + SEND_SLICE]
+                while piece:
+                    n = os.write(self._stdin, piece)
+                    self._written += n
+                    piece = piece[n:]
+        finally:
+            self._sending = False
 
     def close(self, timeout: float = CLOSE_TIMEOUT_S) -> None:
-        """Write what is queued, finish the file (summary and footer) and close it. Idempotent."""
+        """Write what is queued, finish the file (summary and footer) and close it. Idempotent. Waits for a writer
+        that takes its input, however long the rest takes; a hung one (the watchdog's bound) is left to finish the
+        file if it resumes."""
         if self._closed:
             return
         self._closed = True
         self._items.append(("stop", None, None, 0.0))
         self._activity.end()  # wake the feeder now (harmless to a loop: it has finished when we close)
-        self._thread.join(timeout)
+        while self._thread.is_alive() and not self.hung:
+            self._thread.join(WATCH_S)
+            self._check()
+        if self._thread.is_alive():  # blocked on a writer that takes nothing: do not wait for it, do not kill it
+            return
+        self._finished = True
         try:  # closes the writer's stdin: it finishes the file even if "stop" did not get through
             out, _ = self._process.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            out, _ = self._process.communicate()
+        except subprocess.TimeoutExpired:  # it took everything but cannot finish (its disk hangs): not killed either
+            self._error = self._error or (f"the log writer did not finish the file within {timeout:g} s (its disk "
+                                          f"hangs?); it finishes it if it resumes")
+            return
         except (OSError, ValueError):  # the writer died earlier and its pipes are gone (error already known)
             out = b""
-        with contextlib.suppress(ValueError):
-            self.error = json.loads(out or b"{}").get("error") or self.error
-        if self._process.returncode != 0 and self.error is None:
-            self.error = f"the writer process exited with code {self._process.returncode}"
+        self._error = self._result(out) or self._error
+        if self._process.returncode != 0 and self._error is None:
+            self._error = f"the writer process exited with code {self._process.returncode}"
 
     def __enter__(self) -> FlightLog:
         return self
@@ -279,8 +428,13 @@ class _Writer:
     """The MCAP file, in the writer process."""
 
     def __init__(self, path: str, metadata: dict[str, str], live_port: int | None = None) -> None:
-        self._fh = open(path, "wb")  # noqa: SIM115 (closed in finish)
-        self._mcap = Writer(self._fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        # The file was claimed (:func:`claim`) or is new: an existing log is never overwritten.
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        if os.fstat(fd).st_size:
+            os.close(fd)
+            raise FileExistsError(f"{path} is not empty: a flight log is never overwritten")
+        self._fh = os.fdopen(fd, "wb")
+        self._mcap = _mcap_writer(self._fh)
         self._mcap.start(profile="", library=LIBRARY)
         for name, data in metadata.items():
             self._mcap.add_metadata(name, {"value": data})
@@ -291,6 +445,9 @@ class _Writer:
         for cls in (PoseInFrame, FrameTransform, Log):  # pose items are built here; Log for the live-view notice
             self._schema(cls.DESCRIPTOR.full_name, build_file_descriptor_set(cls).SerializeToString())
         self._live = _Live(live_port) if live_port else None
+        self.rejected: dict[str, int] = {}
+        """Messages not written, by topic and what was wrong (:meth:`_reject`)."""
+        self._last_ns = 0
 
     def _schema(self, name: str, descriptor_set: bytes) -> None:
         if name not in self._schemas:
@@ -310,44 +467,82 @@ class _Writer:
                                          "protobuf", data)
         return self._channels[topic]
 
-    def _add(self, topic: str, schema: str | None, payload: bytes, t: float, publish: float | None = None) -> None:
-        ns = int(t * 1e9)
+    def _add(self, topic: str, schema: str | None, payload: bytes, ns: int, publish_ns: int | None = None) -> None:
+        """One message; ``ns`` and ``publish_ns`` are valid MCAP times (:func:`stamp_ns`)."""
         cid, encoding, schema_name, schema_encoding, schema_data = self._channel(topic, schema)
-        self._mcap.add_message(cid, log_time=ns, data=payload,
-                               publish_time=ns if publish is None else int(publish * 1e9))
+        self._mcap.add_message(cid, log_time=ns, data=payload, publish_time=ns if publish_ns is None else publish_ns)
+        self._last_ns = ns
         if self._live is not None:
             try:
                 self._live.publish(topic, encoding, schema_name, schema_encoding, schema_data, payload, ns)
             except Exception as exc:  # noqa: BLE001 - a port in use must not cost the log
                 port, self._live = self._live.port, None
-                note = Log(timestamp=_stamp(t), level=Log.WARNING, name="groundstation",
-                           message=f"live view on port {port} unavailable: {exc}")
-                self._add("/log", Log.DESCRIPTOR.full_name, note.SerializeToString(), t)
+                self._note(Log.WARNING, f"live view on port {port} unavailable: {exc}", ns)
+
+    def _note(self, level: int, text: str, ns: int | None = None) -> None:
+        """An event of the writer's own on ``/log`` (at ``ns``, default the last message's log time)."""
+        ns = ns if ns is not None else self._last_ns or stamp_ns(time.time())
+        msg = Log(timestamp=_stamp(ns * 1e-9), level=level, name="groundstation.log", message=text)
+        self._add("/log", Log.DESCRIPTOR.full_name, msg.SerializeToString(), ns)
+
+    def _reject(self, topic: str, what: str, detail: str) -> None:
+        """Count a message that is not written (``what``: which part of it is wrong), naming the first of each kind
+        in the log: a bad stamp or record costs that message, never the writer."""
+        key = f"{topic} {what}"
+        self.rejected[key] = self.rejected.get(key, 0) + 1
+        if self.rejected[key] == 1:
+            self._note(Log.WARNING, f"a message on {topic} is not written: {detail}; every such message is counted "
+                                    f"(the total is logged at the end)")
 
     def write(self, item) -> None:
         kind, topic, data, t = item
         if kind == "schema":
             self._schema(topic, data)
-        elif kind == "pose":
-            position, rotation = data
-            msg = PoseInFrame(timestamp=_stamp(t), frame_id="world")
-            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
-            o = msg.pose.orientation
-            o.x, o.y, o.z, o.w = matrix_to_quat(rotation)
-            tf = FrameTransform(timestamp=_stamp(t), parent_frame_id="world", child_frame_id="body")
-            tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in position)
-            tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = o.x, o.y, o.z, o.w
-            self._add(topic, PoseInFrame.DESCRIPTOR.full_name, msg.SerializeToString(), t)
-            self._add("/tf", FrameTransform.DESCRIPTOR.full_name, tf.SerializeToString(), t)
-        elif kind == "json":
-            self._add(topic, None, json.dumps(_with_attitudes(data), default=_jsonable).encode(), t)
-        else:
-            self._add(topic, data[0], data[1], t, data[2])
+            return
+        ns = stamp_ns(t)
+        if ns is None:
+            self._reject(topic, "log time", f"its log time {t!r} is not a time (finite, non-negative, before 2554)")
+            return
+        if kind == "pb":
+            publish_ns = stamp_ns(data[2])
+            if publish_ns is None:
+                self._reject(topic, "publish time",
+                             f"its publish time {data[2]!r} is not a time (finite, non-negative, before 2554)")
+                return
+            self._add(topic, data[0], data[1], ns, publish_ns)
+            return
+        try:  # encoding: what fails here is the record's (a value that does not convert), not the disk's
+            if kind == "pose":
+                position, rotation = data
+                msg = PoseInFrame(timestamp=_stamp(t), frame_id="world")
+                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
+                o = msg.pose.orientation
+                o.x, o.y, o.z, o.w = matrix_to_quat(rotation)
+                tf = FrameTransform(timestamp=_stamp(t), parent_frame_id="world", child_frame_id="body")
+                tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in position)
+                tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = o.x, o.y, o.z, o.w
+                messages = [(topic, PoseInFrame.DESCRIPTOR.full_name, msg.SerializeToString()),
+                            ("/tf", FrameTransform.DESCRIPTOR.full_name, tf.SerializeToString())]
+            else:
+                messages = [(topic, None, json.dumps(_with_attitudes(data), default=_jsonable).encode())]
+        except Exception as exc:  # noqa: BLE001 - no I/O above: whatever fails is the record's
+            self._reject(topic, "encoding", f"it does not encode ({type(exc).__name__}: {exc})")
+            return
+        for topic_, schema, payload in messages:
+            self._add(topic_, schema, payload, ns)
 
     def flush(self) -> None:
         self._fh.flush()
 
+    def note_unfinished(self) -> None:
+        """The input ended without "stop": the flight process was killed or crashed (or could not hand over the
+        rest), so the flight's end may be missing; say so in the log itself."""
+        self._note(Log.ERROR, "the log ends without the flight's end: the flight process stopped handing over "
+                              "records (killed, crashed, or blocked) before it finished the log")
+
     def finish(self) -> None:
+        if self.rejected:
+            self._note(Log.WARNING, "messages not written: " + "; ".join(f"{k}: {n}" for k, n in self.rejected.items()))
         self._mcap.finish()
         self._fh.close()
         if self._live is not None:
@@ -380,21 +575,22 @@ def _frames(fd: int, poll_s: float):
 
 def _writer_main() -> None:
     """The writer process: open the file from the first frame, write every batch, flush each second, finish
-    on "stop" or at end of input (the flight process died), and print ``{"error": ...}`` for the flight process."""
+    on "stop" or at end of input (the flight process died: noted in the log), and print ``{"error": ...,
+    "rejected": {...}}`` for the flight process."""
     writer = None
     error = None
+    stopped = False
     try:
         last_flush = time.monotonic()
         for batch in _frames(sys.stdin.fileno(), POLL_S):
-            stop = False
             for item in batch or ():
                 if item[0] == "open":
                     writer = _Writer(item[1], item[2]["metadata"], item[2]["live_port"])
                 elif item[0] == "stop":
-                    stop = True
+                    stopped = True
                 else:
                     writer.write(item)
-            if stop:
+            if stopped:
                 break
             if writer is not None and time.monotonic() - last_flush >= FLUSH_S:
                 writer.flush()
@@ -404,58 +600,55 @@ def _writer_main() -> None:
     finally:
         if writer is not None:
             try:
+                if not stopped and error is None:
+                    writer.note_unfinished()
                 writer.finish()
             except Exception as exc:  # noqa: BLE001 - a full disk fails the footer too: what is written stays
                 error = error or f"{type(exc).__name__}: {exc}"
                 with contextlib.suppress(OSError):
                     writer.abandon()
     with contextlib.suppress(OSError):  # nobody left to tell
-        print(json.dumps({"error": error}), flush=True)
+        print(json.dumps({"error": error, "rejected": writer.rejected if writer is not None else {}}), flush=True)
+
+
+def _mcap_writer(fh) -> Writer:
+    """An MCAP writer of flight logs: small zstd chunks, each with its CRC, and a CRC of the whole data section."""
+    return Writer(fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD, enable_data_crcs=True)
 
 
 def recover(src: str | Path, dst: str | Path) -> dict:
-    """Copy every complete record of a possibly truncated MCAP (e.g. after SIGKILL) into a finalized file.
+    """Copy every intact record of a possibly truncated or damaged MCAP (e.g. after SIGKILL, or a flipped bit on
+    the disk) into a finalized file at ``dst``, streamed (memory does not grow with the log).
 
-    Returns counts: messages recovered, channels, and whether the source ended cleanly.
+    Returns counts: messages and channels written, intact chunks read, whether the source was complete (finalized,
+    nothing damaged), what was dropped (chunks and messages, in all and by reason; messages None where unknown)
+    and the warnings naming each damaged stretch.
     """
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    messages: list[Message] = []
-    metadata: list[Metadata] = []
-    attachments: list[Attachment] = []
-    clean = True
-    with open(src, "rb") as fh:
-        try:
-            for rec in StreamReader(fh).records:
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Message):
-                    messages.append(rec)
-                elif isinstance(rec, Metadata):
-                    metadata.append(rec)
-                elif isinstance(rec, Attachment):
-                    attachments.append(rec)
-        except Exception:  # truncated tail: everything before it is kept
-            clean = False
+    if Path(dst).exists() and os.path.samefile(src, dst):
+        raise UsageError(f"{dst}: is the log to recover; write the recovered copy to another file")
+    scan = LogScan(src)
+    schemas: dict[int, int] = {}
+    channels: dict[int, int] = {}
+    kept = 0
     with open(dst, "wb") as out:
-        w = Writer(out, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        w = _mcap_writer(out)
         w.start(profile="", library=f"{LIBRARY} recover")
-        for m in metadata:
-            w.add_metadata(m.name, dict(m.metadata))
-        for a in attachments:
-            w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
-        schema_map = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in schemas.items()}
-        chan_map = {cid: w.register_channel(c.topic, c.message_encoding, schema_map.get(c.schema_id, 0),
-                                            dict(c.metadata)) for cid, c in channels.items()}
-        kept = 0
-        for m in messages:
-            if m.channel_id in chan_map:
-                w.add_message(chan_map[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
+        for rec in scan.records():  # an intact summary's schemas and channels come first, then the file's order
+            if isinstance(rec, Schema) and rec.id not in schemas:
+                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.id not in channels:
+                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding, schemas.get(rec.schema_id, 0),
+                                                      dict(rec.metadata))
+            elif isinstance(rec, Message):
+                w.add_message(channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence)
                 kept += 1
+            elif isinstance(rec, Metadata):
+                w.add_metadata(rec.name, dict(rec.metadata))
+            elif isinstance(rec, Attachment):
+                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
         w.finish()
-    return {"messages": kept, "channels": len(chan_map), "source_was_complete": clean}
+    return {"messages": kept, "channels": len(channels), "chunks": scan.chunks, "source_was_complete": scan.complete,
+            "dropped": scan.dropped(), "warnings": scan.warnings()}
 
 
 if __name__ == "__main__":

@@ -80,6 +80,9 @@ MOCAP_STATS = _obj("the pose subscriber's counters since the start, about once a
     "malformed": {"type": "integer", "description": "samples that did not decode"},
     "missed": {"type": "integer", "description": "gaps in the publisher's sequence"},
     "foreign": {"type": "integer", "description": "samples from a publisher other than the body's source"},
+    "unauthenticated": {"type": "integer", "description": "samples without a valid MAC (mocap.key_file set)"},
+    "bad_stamps": {"type": "integer", "description": "samples whose stamp disagrees with their arrival time"},
+    "conflicts": {"type": "integer", "description": "samples out of sequence under the source's id (a copy)"},
     "resyncs": {"type": "integer", "description": "times the estimate followed a new consistent track"},
     "rate_hz": {"type": "number", "description": "accepted samples a second over the last interval"},
 }, required=("received", "rejected", "malformed"))
@@ -94,6 +97,8 @@ LOOP_TIMING = _obj("the control loop over the whole flight", {
 
 FLIGHT_SUMMARY = _obj("the flight's figures, as groundstation fly --json prints them", {
     "phase": {"type": "string"}, "reason": {"type": "string"},
+    "degraded": {"type": "array", "items": {"type": "string"},
+                 "description": "what went beyond the flight's bounds (empty: within them)"},
     "pos_rmse_m": {"type": "number"}, "max_pos_error_m": {"type": "number"},
     "max_orientation_error_deg": {"type": "number"}, "max_roll_error_deg": {"type": "number"},
     "max_motor_fraction": {"type": "number"}})

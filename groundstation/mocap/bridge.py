@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundstation.errors import UsageError
+from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, Security, open_session, pose_key
 from groundstation.rotations import quat_to_matrix
 
@@ -38,8 +39,9 @@ class BridgeStats:
 def run_bridge(system: str, host: str, bodies: list[str], endpoint: str, key_prefix: str = "mocap",
                listen: bool = True, y_up: bool = False, mock_bodies: str = "", duration: float | None = None,
                stop: threading.Event | None = None, on_frame: Callable[[int], None] | None = None,
-               security: Security | None = None) -> BridgeStats:
-    """Publish every requested body's pose per mocap frame until ``stop`` is set or ``duration`` elapses."""
+               security: Security | None = None, mac_key: MocapKey | None = None) -> BridgeStats:
+    """Publish every requested body's pose per mocap frame until ``stop`` is set or ``duration`` elapses; with
+    ``mac_key`` every sample carries a MAC (:mod:`groundstation.mocap.auth`)."""
     if system not in SYSTEMS:
         raise UsageError(f"unknown mocap system {system!r}; choose one of {', '.join(SYSTEMS)}")
     if not bodies:
@@ -57,7 +59,7 @@ def run_bridge(system: str, host: str, bodies: list[str], endpoint: str, key_pre
     stats = BridgeStats(published={b: 0 for b in bodies}, missing={b: 0 for b in bodies})
     session = open_session(listen=[endpoint] if listen else [], connect=[] if listen else [endpoint],
                            security=security)
-    pubs = {b: PosePublisher(session, pose_key(key_prefix, b)) for b in bodies}
+    pubs = {b: PosePublisher(session, pose_key(key_prefix, b), mac_key) for b in bodies}
     t_end = time.monotonic() + duration if duration is not None else None
     try:
         while not stop.is_set() and (t_end is None or time.monotonic() < t_end):

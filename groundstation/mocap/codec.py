@@ -2,7 +2,8 @@
 
 Payload: ``foxglove.PoseInFrame`` (frame ``world``, z up, metres; the same bytes are logged to MCAP unchanged and
 Foxglove draws them). Attachment: 16 bytes little-endian, ``uint64 sequence`` then ``float64 stamp``, so a
-subscriber can detect drops without parsing the payload. The stamp (in the attachment and the payload's
+subscriber can detect drops without parsing the payload; with a shared key (:mod:`groundstation.mocap.auth`) a
+16-byte MAC follows them (32 bytes in all). The stamp (in the attachment and the payload's
 timestamp) is the publisher's wall clock (seconds since the epoch) when the pose was measured: the clock flight
 logs use, so a logged pose and the flight's records share one time base (across machines, as far as their clocks
 are synchronized).
@@ -17,10 +18,15 @@ import numpy as np
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from groundstation.mocap.auth import TAG_BYTES, MocapKey
 from groundstation.rotations import matrix_to_quat, quat_to_matrix
 
 _ATTACHMENT = struct.Struct("<Qd")
 WORLD_FRAME = "world"
+
+
+class Unauthenticated(ValueError):
+    """A sample without a valid MAC where a key is configured."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,22 +51,36 @@ def pose_message(position: np.ndarray, rotation: np.ndarray, stamp: float, frame
     return msg
 
 
-def encode(sample: PoseSample) -> tuple[bytes, bytes]:
-    """(payload, attachment) for Zenoh."""
+def encode(sample: PoseSample, key: MocapKey | None = None, key_expr: str = "") -> tuple[bytes, bytes]:
+    """(payload, attachment) for Zenoh; with ``key``, the attachment ends with the MAC for ``key_expr``."""
     payload = pose_message(sample.position, sample.rotation, sample.stamp).SerializeToString()
-    return payload, _ATTACHMENT.pack(sample.sequence, sample.stamp)
+    attachment = _ATTACHMENT.pack(sample.sequence, sample.stamp)
+    if key is not None:
+        attachment += key.tag(key_expr, attachment, payload)
+    return payload, attachment
 
 
-def decode(payload: bytes, attachment: bytes | None) -> PoseSample:
-    """Inverse of :func:`encode`; raises ``ValueError`` on malformed input."""
+def decode(payload: bytes, attachment: bytes | None, key: MocapKey | None = None, key_expr: str = "") -> PoseSample:
+    """Inverse of :func:`encode`; raises ``ValueError`` on malformed input (a stamp that is not a finite,
+    non-negative time included) and :class:`Unauthenticated` when ``key`` is given and the MAC is missing or wrong.
+    Without a key a MAC is ignored: an unauthenticated subscriber reads an authenticated stream."""
+    if attachment is None or len(attachment) not in (_ATTACHMENT.size, _ATTACHMENT.size + TAG_BYTES):
+        raise ValueError("missing or malformed sequence/stamp attachment")
+    head = attachment[:_ATTACHMENT.size]
+    if key is not None:
+        tag = attachment[_ATTACHMENT.size:]
+        if not tag:
+            raise Unauthenticated("no MAC")
+        if not key.verify(key_expr, head, payload, tag):
+            raise Unauthenticated("wrong MAC")
     msg = PoseInFrame()
     try:
         msg.ParseFromString(payload)
     except Exception as exc:  # protobuf raises its own DecodeError type
         raise ValueError(f"not a foxglove.PoseInFrame: {exc}") from None
-    if attachment is None or len(attachment) != _ATTACHMENT.size:
-        raise ValueError("missing or malformed sequence/stamp attachment")
-    seq, stamp = _ATTACHMENT.unpack(attachment)
+    seq, stamp = _ATTACHMENT.unpack(head)
+    if not (np.isfinite(stamp) and stamp >= 0.0):
+        raise ValueError(f"stamp {stamp} is not a time")
     p, o = msg.pose.position, msg.pose.orientation
     q = np.array([o.x, o.y, o.z, o.w])
     pos = np.array([p.x, p.y, p.z])

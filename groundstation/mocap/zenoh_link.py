@@ -17,7 +17,9 @@ import zenoh
 
 from groundstation.control.state import RigidState
 from groundstation.errors import SessionError
-from groundstation.mocap.codec import PoseSample, decode, encode
+from groundstation.mocap.auth import MocapKey
+from groundstation.mocap.codec import PoseSample, Unauthenticated, decode, encode
+from groundstation.mocap.stamp_clock import StampClock, StampClockSettings
 from groundstation.rotations import matrix_to_rotvec, rotation_angle, rotvec_to_matrix
 
 
@@ -69,16 +71,19 @@ def pose_key(prefix: str, body: str) -> str:
 
 class PosePublisher:
     """Publishes poses of one rigid body on its key (``<prefix>/<body>/pose``), each with the publisher's Zenoh
-    entity id and the sequence number as source info, so a subscriber can tell publishers apart."""
+    entity id and the sequence number as source info, so a subscriber can tell publishers apart, and with
+    ``mac_key`` a MAC (:mod:`groundstation.mocap.auth`)."""
 
-    def __init__(self, session: zenoh.Session, key: str) -> None:
+    def __init__(self, session: zenoh.Session, key: str, mac_key: MocapKey | None = None) -> None:
         self._pub = session.declare_publisher(key, express=True)
+        self._key = key
+        self._mac_key = mac_key
         self._seq = 0
 
     def publish(self, position: np.ndarray, rotation: np.ndarray, stamp: float) -> PoseSample:
         self._seq += 1
         sample = PoseSample(self._seq, stamp, np.asarray(position, float), np.asarray(rotation, float))
-        payload, attachment = encode(sample)
+        payload, attachment = encode(sample, self._mac_key, self._key)
         self._pub.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(self._pub.id, self._seq))
         return sample
 
@@ -103,6 +108,12 @@ class SubscriberSettings:
     resync_samples: int = 5
     """Consecutive rejected samples consistent among themselves (sequence, stamps, speed) after which the estimate
     follows them: the body reappearing elsewhere after an occlusion, a publisher's counter starting anew."""
+    stamps: StampClockSettings = StampClockSettings()
+    """How far a stamp may disagree with its arrival time."""
+    max_conflicts: int = 3
+    """This many sequence conflicts (two interleaved sequences under one source id) within a second are a fault:
+    a single publisher's samples arrive in order on Zenoh's ordered links, so only a second sender that copied the
+    source id produces them."""
 
 
 class PoseSubscriber:
@@ -113,24 +124,39 @@ class PoseSubscriber:
     the control loop at every sample; measured at 500 Hz that was the largest source of late periods. The cost is
     that arrival is timed when the samples are polled, at most one control period late.
 
-    Integrity. The first publisher heard is the body's source (its Zenoh entity id, in the samples' source info);
-    a sample from any other is counted (:attr:`foreign`) and never used, and :meth:`fault` names it. A sample
-    that repeats or goes back in sequence or time, jumps more than ``max_sequence_jump`` ahead, moves faster than
-    ``max_speed``, or lands outside the position or attitude gate (the attitude predicted with the body rate from
-    the modules' gyros, :meth:`set_body_rate`) is rejected without moving the estimate, so one forged sample
-    cannot lock the stream out. Rejected samples that form a consistent track of their own for
-    ``resync_samples`` samples are taken (:attr:`resyncs`). Lost samples show up as gaps in the sequence
-    (:attr:`missed`).
+    Integrity. With ``mac_key``, a sample without the key's MAC is counted (:attr:`unauthenticated`) and never
+    used; that is what stops a forger (see the README's "Mocap on a lab network"). The first publisher heard is
+    the body's source (its Zenoh entity id, in the samples' source info); a sample from any other is counted
+    (:attr:`foreign`) and never used, and :meth:`fault` names it. The id is only a claim (any publisher can copy
+    it): without a key, two interleaved sequences under one id are counted (:attr:`conflicts`) and a fault too
+    (with a key only the key's holders publish, and a sample behind the newest is a replay: rejected, no fault).
+    A stamp must agree with the sample's arrival on this process's clock (:class:`StampClock`; else
+    :attr:`bad_stamps`), so the gates below, which scale with the time between stamps, are opened by the local
+    clock, never by a stamp alone. A sample that repeats or goes back in sequence or time, jumps more than
+    ``max_sequence_jump`` ahead, moves faster than ``max_speed``, or lands outside the position or attitude gate
+    (the attitude predicted with the body rate from the modules' gyros, :meth:`set_body_rate`) is rejected
+    without moving the estimate, so one forged sample cannot lock the stream out. Rejected samples that form a
+    consistent track of their own for ``resync_samples`` samples are taken (:attr:`resyncs`). Lost samples show
+    up as gaps in the sequence (:attr:`missed`).
     """
 
     RING = 64
     """Samples buffered between polls; at 500 Hz mocap that is 128 ms of poses."""
 
     def __init__(self, session: zenoh.Session, key: str, settings: SubscriberSettings | None = None,
-                 clock=time.monotonic) -> None:
+                 clock=time.monotonic, mac_key: MocapKey | None = None) -> None:
         self.settings = settings or SubscriberSettings()
         self.key = key
         self._clock = clock
+        self._mac_key = mac_key
+        self._stamps = StampClock(self.settings.stamps)
+        self._polled = -np.inf
+        """When the samples were last polled (clock time), s."""
+        self._conflict_times: list[float] = []
+        self._cadence = 0.01
+        """The stream's sample interval, s (filtered stamp differences per sequence step)."""
+        self._behind_since_accept = False
+        """A sample was rejected as not after the newest since the last one taken."""
         self._lock = threading.Lock()
         self._last: PoseSample | None = None
         self._received_at = 0.0
@@ -149,6 +175,12 @@ class PoseSubscriber:
         self.foreign = 0
         """Samples from a publisher other than the source."""
         self.foreign_sources: set[str] = set()
+        self.unauthenticated = 0
+        """Samples without a valid MAC (with ``mac_key``)."""
+        self.bad_stamps = 0
+        """Samples of the source whose stamp disagrees with their arrival time."""
+        self.conflicts = 0
+        """Samples taken right after one of another sequence under the same source id was rejected."""
         self.resyncs = 0
         self.last_rejection = ""
         """Why the newest rejected sample was rejected."""
@@ -163,22 +195,31 @@ class PoseSubscriber:
         """Take every buffered sample in arrival order; returns how many arrived since the last poll."""
         n = 0
         with self._lock:
+            now = self._clock()
+            before, self._polled = self._polled, now  # what is found now arrived after ``before``
             while self._sub is not None and (sample := self._sub.try_recv()) is not None:
                 n += 1
-                self._accept(sample, self._clock())
+                self._accept(sample, now, before)
         return n
 
-    def _why_not(self, pose: PoseSample, last: PoseSample, velocity: np.ndarray) -> str:
-        """Why ``pose`` does not follow ``last`` (moving at ``velocity``); "" if it does."""
+    def _why_not(self, pose: PoseSample, last: PoseSample, velocity: np.ndarray, now: float) -> str:
+        """Why ``pose``, arriving at ``now``, does not follow ``last`` (moving at ``velocity``); "" if it does."""
         s = self.settings
         ahead = pose.sequence - last.sequence
         if ahead <= 0:
             return f"sequence {pose.sequence} not after {last.sequence}"
         if ahead > s.max_sequence_jump:
             return f"sequence jumps {ahead} ahead"
-        dt = pose.stamp - last.stamp
-        if dt <= 0:
+        if pose.stamp <= last.stamp:
             return "stamp not after the last one"
+        if self._conflict_times and pose.stamp - last.stamp < 0.5 * self._cadence:
+            # A second sender under the source's id answers the genuine samples at once; the genuine publisher
+            # keeps its rate. While one is seen, a sample off that rate is not taken (a forger can match the rate
+            # too: the defence is the key).
+            return f"{(pose.stamp - last.stamp) * 1e3:.1f} ms after the last sample: off the stream's cadence"
+        # The gates scale with the time between the samples: the stamps' (precise) unless they claim more than
+        # the local clock saw (plus the jitter a stamp may have), so a stamp cannot open them by itself.
+        dt = min(pose.stamp - last.stamp, now - self._received_at + s.stamps.max_skew_s)
         step = float(np.linalg.norm(pose.position - last.position))
         if step > s.max_speed * dt + 0.005:
             return f"moves {step:.2f} m in {dt * 1e3:.0f} ms"
@@ -199,11 +240,14 @@ class PoseSubscriber:
         return (0 < pose.sequence - prev.sequence <= s.max_sequence_jump and dt > 0
                 and float(np.linalg.norm(pose.position - prev.position)) <= s.max_speed * dt + 0.005)
 
-    def _accept(self, sample: zenoh.Sample, now: float) -> None:
+    def _accept(self, sample: zenoh.Sample, now: float, before: float) -> None:
         payload = sample.payload.to_bytes()
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
         try:
-            pose = decode(payload, attachment)
+            pose = decode(payload, attachment, self._mac_key, self.key)
+        except Unauthenticated:
+            self.unauthenticated += 1
+            return
         except ValueError:
             self.malformed += 1
             return
@@ -217,12 +261,19 @@ class PoseSubscriber:
             return
         self.received += 1
         self._raw.append((now, payload, pose.stamp))
+        if not self._stamps.believable(pose.stamp, before, now):
+            self.rejected += 1
+            self.bad_stamps += 1
+            off = self._stamps.disagreement(pose.stamp, before, now)
+            self.last_rejection = f"stamp {off * 1e3:+.0f} ms off its arrival time"
+            return
         last = self._last
         if last is not None:
-            why = self._why_not(pose, last, self._velocity)
+            why = self._why_not(pose, last, self._velocity, now)
             if why:
                 self.rejected += 1
                 self.last_rejection = why
+                self._behind_since_accept |= pose.sequence <= last.sequence
                 track = self._track
                 if track and not self._continues(track[-1], pose):
                     track.clear()
@@ -237,8 +288,12 @@ class PoseSubscriber:
                 self._take(pose, now)
                 return
             self._track.clear()
+            if self._behind_since_accept and self._mac_key is None:  # with a key, samples behind are replays
+                self._conflict(now)
             self.missed += pose.sequence - last.sequence - 1
             dt = pose.stamp - last.stamp
+            if not self._conflict_times:  # the stream's own rate, learnt while a single sender is seen
+                self._cadence += 0.05 * (dt / (pose.sequence - last.sequence) - self._cadence)
             a = 1.0 - np.exp(-2 * np.pi * self.settings.velocity_cutoff_hz * dt)
             self._velocity += a * ((pose.position - last.position) / dt - self._velocity)
             self._omega += a * (matrix_to_rotvec(last.rotation.T @ pose.rotation) / dt - self._omega)
@@ -247,13 +302,23 @@ class PoseSubscriber:
     def _take(self, pose: PoseSample, now: float) -> None:
         self._last = pose
         self._received_at = now
+        self._stamps.take(pose.stamp, now)
+        self._behind_since_accept = False
         self.accepted += 1
 
+    def _conflict(self, now: float) -> None:
+        self.conflicts += 1
+        self._conflict_times = [t for t in self._conflict_times if t > now - 1.0] + [now]
+
     def fault(self) -> str:
-        """Why the stream cannot be trusted ("" while it can): another publisher on the body's key."""
+        """Why the stream cannot be trusted ("" while it can): another publisher on the body's key, or two
+        sequences under one source id."""
         if self.foreign:
             return (f"a second publisher on {self.key} ({self.foreign} samples from "
                     f"{len(self.foreign_sources)} other source{'s' if len(self.foreign_sources) > 1 else ''})")
+        if len(self._conflict_times) >= self.settings.max_conflicts:
+            return (f"two sequences under one source id on {self.key} ({self.conflicts} samples out of sequence: "
+                    f"a copied id or replayed samples)")
         return ""
 
     def state(self) -> RigidState | None:

@@ -28,6 +28,9 @@ from groundstation.replay.reader import open_log
 from groundstation.rotations import quat_to_matrix
 from groundstation.runtime.metrics import FlightFigures, FlightMetrics, figures_of
 
+NO_END = ("the log has no end of flight: its flight process stopped before finishing it (killed, crashed, or its log "
+          "writer failed first); the phase is the last one logged")
+"""The reason of a log without the flight's summary: never an end in a phase with no reason."""
 SERIES_POINTS = 20_000
 """Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
 PHASES = tuple(Phase)
@@ -209,7 +212,10 @@ class Replay:
 
     path: Path
     complete: bool
-    """The file ended cleanly (False: cut short by a crash; everything up to the cut was read)."""
+    """The file ended cleanly with nothing damaged (False: cut short by a crash, or damaged; everything intact was
+    read)."""
+    warnings: tuple[str, ...]
+    """What reading skipped: one line per damaged stretch and a line of totals (empty for an intact log)."""
     metadata: dict
     metrics: ReplayFigures
     events: list
@@ -229,8 +235,9 @@ def _config(metadata: dict, src: str) -> dict:
 
 def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = None, rerun: bool = False,
             gains: Gains | None = None, allocation: str | None = None, progress=None) -> Replay:
-    """Stream the flight log at ``path`` once; figures over flight time ``[t_from, t_to]`` (all if None).
-    ``progress(fraction)`` is told how much of the file has been read."""
+    """Stream the flight log at ``path`` once; figures over flight time ``[t_from, t_to]`` (all if None) from
+    every intact record (damage is skipped and named in :attr:`Replay.warnings`). ``progress(fraction)`` is told
+    how much of the file has been read."""
     log = open_log(path)
     src = str(path)
     metrics: FlightMetrics | None = None
@@ -287,14 +294,18 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             loop_summary = d
         elif rec.topic == "/flight/summary":
             summary = d
-    if metrics is None:
-        raise ConfigError("the log has no control period to analyse" + (" in the window" if lo > -math.inf or
-                                                                          hi < math.inf else ""), path=src)
+    windowed = lo > -math.inf or hi < math.inf
+    if metrics is None and (windowed or not (summary or events_raw)):
+        raise ConfigError("the log has no control period to analyse" + (" in the window" if windowed else ""),
+                          path=src)
+    if metrics is None:  # never flew (preflight refused, stopped before arming): its events and its end
+        metrics = FlightMetrics(0)
+        offset = events_raw[0][0] if events_raw else None
     offset = offset or 0.0
     events = [(lt - offset, level, text) for lt, level, text in events_raw]
     end = summary.get("phase")
-    if end and timeline and timeline[-1][1] != end:  # the end state is only in the summary and the events
-        timeline.append((metrics.t_last, end))
+    if end and (not timeline or timeline[-1][1] != end):  # the end state is only in the summary and the events
+        timeline.append((metrics.t_last if metrics.periods else 0.0, end))
     duration = (metrics.t_last - metrics.t_first) if metrics.periods > 1 else 0.0
     m = ReplayFigures(
         **figures_of(metrics.result()), overruns=loop_summary.get("overruns", overruns),
@@ -302,7 +313,8 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
         mocap_rate_hz=mocap.get("accepted", 0) / duration if duration > 0 and mocap else math.nan,
         mocap_rejected=mocap.get("rejected", 0), mocap_malformed=mocap.get("malformed", 0),
         mocap_missed=mocap.get("missed", 0), duration_s=duration,
-        phase=summary.get("phase", timeline[-1][1] if timeline else ""), reason=summary.get("reason", ""),
+        phase=summary.get("phase", timeline[-1][1] if timeline else ""),
+        reason=summary.get("reason", "") if summary else NO_END,
         stalls=sum("loop stalled" in text for _, _, text in events), **modules.result())
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
@@ -310,4 +322,5 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
                np.array([r[6] for r in rows]))
     meta = {"config": _config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
             "config_path": log.metadata.get("config_path", "")}
-    return Replay(Path(path), log.complete, meta, m, events, timeline, s, rr.stats.result() if rr else None)
+    return Replay(Path(path), log.complete, log.warnings, meta, m, events, timeline, s,
+                  rr.stats.result() if rr else None)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.output import writing
 from groundstation.replay.reader import open_log
 
 
@@ -14,7 +15,8 @@ def export_csv(path: str | Path, out_dir: str | Path, t_from: float | None = Non
                t_to: float | None = None) -> list[Path]:
     """``<stem>_control.csv`` (one row per control period: flight time, phase, position and setpoint in m,
     attitude and its target in deg, mocap age and loop start error in s, rotor commands as fractions of u_max) and
-    ``<stem>_events.csv``; returns the paths."""
+    ``<stem>_events.csv``; returns the paths. A write that fails (a full disk) is a
+    :class:`~groundstation.errors.UsageError` naming the file."""
     log = open_log(path)
     out_dir = Path(out_dir)
     stem = Path(path).stem
@@ -23,7 +25,7 @@ def export_csv(path: str | Path, out_dir: str | Path, t_from: float | None = Non
     hi = np.inf if t_to is None else t_to
     offset = None
     events = []
-    with open(control_path, "w", newline="") as fc:
+    with writing(control_path), open(control_path, "w", newline="") as fc:
         w = csv.writer(fc)
         header_done = False
         for rec in log.records({"/control", "/log"}):
@@ -45,7 +47,7 @@ def export_csv(path: str | Path, out_dir: str | Path, t_from: float | None = Non
             w.writerow([d["t"], d["phase"], *flown["position"], *d["setpoint"]["position"], *flown["rpy_deg"],
                         *d["attitude_target"]["rpy_deg"], d.get("mocap_age_s", ""),
                         (d.get("loop") or {}).get("start_error_s", ""), *motors.reshape(-1)])
-    with open(events_path, "w", newline="") as fe:
+    with writing(events_path), open(events_path, "w", newline="") as fe:
         w = csv.writer(fe)
         w.writerow(["t_s", "level", "text"])
         for lt, level, text in events:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from groundstation.control.phase import Phase
+from groundstation.output import save_figure
 from groundstation.replay.analysis import PHASES, Replay
 
 COLORS = ("tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
@@ -126,7 +127,4 @@ def plot_replays(replays: list[Replay], path: str | Path) -> Path:
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=7)
         ax.set_xlabel("flight time (s)", fontsize=7)
-    out = Path(path)
-    fig.savefig(out, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=100, bbox_inches="tight")

@@ -1,7 +1,8 @@
 """Reading a flight log back, streamed: one record at a time, whatever the file's length.
 
-The reader goes through the file front to back (``mcap``'s stream reader: it needs no summary section, so a log
-recovered after a crash, or cut short by a crash, reads too, up to its last complete chunk) and decodes JSON
+The reader goes through the file front to back (:class:`~groundstation.flightlog.salvage.LogScan`: it needs no
+summary section, so a log recovered after a crash, or cut short by a crash, reads too, up to its last complete
+chunk; a damaged chunk or record is skipped and reading goes on with the next intact chunk) and decodes JSON
 channels to dicts and ``/log`` to (level, text). Memory does not grow with the file: nothing is kept but the
 channel table.
 """
@@ -14,12 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from foxglove_schemas_protobuf.Log_pb2 import Log
-from mcap.exceptions import McapError
 from mcap.records import Channel, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from groundstation.errors import ConfigError
 from groundstation.flightlog.mcap_log import LIBRARY
+from groundstation.flightlog.salvage import LogScan
 
 LEVEL_NAMES = {Log.DEBUG: "debug", Log.INFO: "info", Log.WARNING: "warning", Log.ERROR: "error",
                Log.FATAL: "fatal"}
@@ -36,41 +37,34 @@ class LogRecord:
 
 @dataclass
 class LogFile:
-    """A flight log being read: its metadata (filled as the stream reaches it) and whether it ended cleanly."""
+    """A flight log being read: its metadata (filled as the stream reaches it) and how it ended."""
 
     path: Path
     metadata: dict[str, str]
-    complete: bool = True
-    """False when the file ends in the middle of a record (a log cut short by a crash)."""
+    complete: bool = False
+    """Finalized with nothing damaged (known once :meth:`records` has been read through); False for a log cut
+    short by a crash or damaged."""
+    warnings: tuple[str, ...] = ()
+    """What reading skipped, one line per damaged stretch and a line of totals (empty for an intact log)."""
 
     def records(self, topics: set[str] | None = None, progress=None) -> Iterator[LogRecord]:
-        """Every message of ``topics`` (all if None), in file order (log time order); ``progress(fraction)`` is
-        called every few thousand records with the fraction of the file read."""
+        """Every intact message of ``topics`` (all if None), in file order (log time order); ``progress(fraction)``
+        is called every few thousand records with the fraction of the file read."""
         channels: dict[int, Channel] = {}
         size = max(self.path.stat().st_size, 1)
-        with open(self.path, "rb") as fh:
-            stream = StreamReader(fh, skip_magic=False).records
-            count = 0
-            while True:
-                count += 1
-                if progress is not None and count % 5000 == 0:
-                    progress(fh.tell() / size)
-                try:
-                    rec = next(stream)
-                except StopIteration:
-                    return
-                except (McapError, ValueError, EOFError, OSError, Exception):  # noqa: B014 - a cut-off tail
-                    self.complete = False
-                    return
-                if isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Metadata):
-                    self.metadata[rec.name] = dict(rec.metadata).get("value", "")
-                elif isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is None or (topics is not None and ch.topic not in topics):
-                        continue
+        scan = LogScan(self.path)
+        for count, rec in enumerate(scan.records(), 1):
+            if progress is not None and count % 5000 == 0:
+                progress(scan.position / size)
+            if isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                self.metadata[rec.name] = dict(rec.metadata).get("value", "")
+            elif isinstance(rec, Message):
+                ch = channels[rec.channel_id]  # the scan hands out no message before its channel
+                if topics is None or ch.topic in topics:
                     yield LogRecord(ch.topic, rec.log_time * 1e-9, _decode(ch, rec.data))
+        self.complete, self.warnings = scan.complete, tuple(scan.warnings())
 
 
 def _decode(ch: Channel, data: bytes) -> object:

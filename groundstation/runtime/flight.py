@@ -3,7 +3,7 @@
 States and transitions (each logged as an event)::
 
     preflight -> takeoff -> settle -> track -> hold -> landing -> done
-    preflight --(a module refuses to arm)--> aborted
+    preflight --(a module refuses to arm, the operator asks to land or stop before arming)--> aborted
          any airborne state --(operator land, mocap stale or link degraded with policy "land", the assembly
                                not following its reference, a module fault the other modules can fly
                                through: the faulty ones isolated)--> landing
@@ -44,7 +44,7 @@ from groundstation.runtime.loop import (
     collector_paused,
     run_fixed_rate,
 )
-from groundstation.runtime.metrics import FlightMetrics
+from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
@@ -131,12 +131,77 @@ class FailsafePolicy:
     a few cm (README, Fig. 9), m."""
 
 
+OPERATOR_LAND = "operator land"
+"""The reason of a landing the operator asked for (a key or a signal, named in brackets: "operator land (SIGTERM)")."""
+
+
+def operator_landing(reason: str) -> bool:
+    """Whether ``reason`` is a landing the operator asked for (a nominal end, like the plan's own)."""
+    return reason == OPERATOR_LAND or reason.startswith(OPERATOR_LAND + " (")
+
+
 @dataclass
 class Requests:
     """Operator requests, set from signal handlers or a key reader thread."""
 
     land: threading.Event = field(default_factory=threading.Event)
     stop: threading.Event = field(default_factory=threading.Event)
+    source: str = ""
+    """What made the last request when it was not a key: the signal's name ("SIGTERM"), named in the reason."""
+
+    def why(self, what: str) -> str:
+        """``what`` the operator asked for, with its source: "operator stop (SIGTERM)"."""
+        return f"{what} ({self.source})" if self.source else what
+
+    def abort_reason(self, when: str) -> str:
+        """The reason of a flight the operator ended ``when`` ("in preflight") before anything was armed."""
+        source = f" ({self.source})" if self.source else ""
+        return f"stopped by the operator {when}{source}: never armed"
+
+
+@dataclass(frozen=True)
+class QualityBounds:
+    """How far a flight that flew its plan (or landed when the operator asked) may degrade and still count as a
+    nominal flight (``fly`` exit 0). Beyond any bound it is *degraded*: named in its summary and log, ``fly`` exits
+    3. The failsafes act on what is unsafe now (tilt, geofence, tracking error, stalls); these judge what the
+    flight's own figures (:class:`~groundstation.runtime.metrics.FlightFigures`) say afterwards. Measured with the
+    toy figure-8 dry run (README) on a 2-core machine running three test suites besides."""
+
+    attitude_error_p95_deg: float = 15.0
+    """95th percentile of the angle between the attitude and the controller's target over settle, track and hold
+    (``orientation_error_p95_deg``), deg. Measured: 3.1-3.3 deg at roll 0 and -5 deg; 7.8-8.7 deg with
+    ``--duration 1`` (the figure-8 entered and left within a second; PyBullet and simulated PX4 modules alike); the
+    attitude gains cut to 1.8 Hz: 31 deg."""
+    max_attitude_error_deg: float = 45.0
+    """Largest such angle (``max_orientation_error_deg``), deg. Measured: 5.4-5.9 deg; 19-23 deg with
+    ``--duration 1``; 38 deg at 1.8 Hz attitude gains; the tilt failsafe stops the motors at 75 deg from level."""
+    max_saturation: float = 0.5
+    """Largest share of the airborne periods in which one of a module's rotors sat at a bound
+    (``saturation_fraction``, per module), fraction. Measured: 0.003 at roll 0 deg, 0.21-0.25 on module 1 at -5 deg;
+    beyond half the time the controller has no margin left."""
+    max_late_fraction: float = 0.25
+    """Share of the control periods that overran their deadline (``loop.overruns / loop.periods``), fraction.
+    Measured: 0 idle (README), 0.04-0.12 under the load above; beyond a quarter the loop does not hold its rate."""
+
+
+def degradation(summary: FlightSummary, bounds: QualityBounds) -> tuple[str, ...]:
+    """What in ``summary`` is beyond ``bounds``, one phrase each (empty: within them; a figure that was never
+    measured, NaN, is not judged)."""
+    out = []
+    p95 = summary.orientation_error_p95_deg
+    if p95 > bounds.attitude_error_p95_deg:
+        out.append(f"attitude error p95 {p95:.1f} deg > {bounds.attitude_error_p95_deg:g} deg")
+    att = summary.max_orientation_error_deg
+    if att > bounds.max_attitude_error_deg:
+        out.append(f"max attitude error {att:.1f} deg > {bounds.max_attitude_error_deg:g} deg")
+    for i, share in enumerate(summary.saturation_fraction):
+        if share > bounds.max_saturation:
+            out.append(f"module {i} rotors at a bound {share:.0%} of the airborne time > {bounds.max_saturation:.0%}")
+    loop = summary.loop
+    if loop is not None and loop.periods and loop.overruns / loop.periods > bounds.max_late_fraction:
+        out.append(f"{loop.overruns} of {loop.periods} control periods late ({loop.overruns / loop.periods:.0%} > "
+                   f"{bounds.max_late_fraction:.0%})")
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -248,9 +313,9 @@ class Flight:
     def _emergency(self, t: float, why: str) -> None:
         self.backend.emergency_stop()
         self._last_u = np.zeros_like(self._last_u)
-        self._log_motors_off(t)
         self.reason = why
         self._set_phase(t, Phase.EMERGENCY, why)
+        self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
     def _begin_landing(self, t: float, from_position: np.ndarray, why: str) -> None:
         ground = np.array(self.plan.ground)
@@ -285,7 +350,7 @@ class Flight:
         if k == 0:
             self._set_phase(t, Phase.TAKEOFF, "armed")
         if self.requests.stop.is_set():
-            self._emergency(t, "operator stop")
+            self._emergency(t, self.requests.why("operator stop"))
             return False
         telemetry = self.backend.telemetry()
         self.pose.set_body_rate(telemetry.gyro if telemetry.gyro.size == 3 else None)  # the mocap attitude gate
@@ -335,7 +400,7 @@ class Flight:
             self._emergency(t, f"tilt beyond {self.policy.max_tilt_deg:g} deg")
             return False
         if self.requests.land.is_set() and self.phase.airborne:
-            self._begin_landing(t, self.plan(t).position, "operator land")
+            self._begin_landing(t, self.plan(t).position, self.requests.why(OPERATOR_LAND))
         if self.log is not None and self.log.error is not None and not self._log_failure_seen:
             self._log_failure_seen = True
             why = f"log writer failed: {self.log.error}"
@@ -418,8 +483,8 @@ class Flight:
     def _finish(self, t: float) -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
         self._last_u = np.zeros_like(self._last_u)
-        self._log_motors_off(t)
         self._set_phase(t, Phase.DONE, "landed")
+        self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
     def _record(self, t, state, sp, out, u, age, telemetry) -> None:
         truth = self.truth() if self.truth is not None else None
@@ -512,6 +577,10 @@ class Flight:
             # Arming is a round trip with the hardware backends (every module must confirm): done before the
             # first period so that wait is not a late period. So is reading what queued meanwhile (a second of
             # MAVLink telemetry, 64 mocap samples): the first period then parses one period's worth.
+            if self.requests.stop.is_set() or self.requests.land.is_set():  # asked before anything spun
+                self.reason = self.requests.abort_reason("before arming")
+                self._set_phase(0.0, Phase.ABORTED, self.reason)
+                return self._stats
             try:
                 self.backend.arm()
             except ArmingError as exc:
@@ -524,17 +593,22 @@ class Flight:
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:
-            self._emergency(self._t_last(), f"{type(exc).__name__}: {exc}")
+            self._emergency(self._t_last(), "interrupted (KeyboardInterrupt)" if isinstance(exc, KeyboardInterrupt)
+                            else f"the control loop crashed: {type(exc).__name__}: {exc}")
             raise
         finally:
             if activity is not None:
                 activity.end()  # no more periods: background threads may work freely
             if not self.phase.final:
                 self._emergency(self._t_last(), "loop ended")
-        if self.log is not None:
-            self.log.record("/loop/timing", asdict(stats.summary()), self._log_time(self._t_last()))
+            if self.log is not None and self._stats.t0 is not None:  # the loop ran (to its end, or it crashed)
+                self.log.record("/loop/timing", asdict(self._stats.summary()), self._log_time(self._t_last()))
         return stats
 
+    @property
+    def stats(self) -> LoopStats | None:
+        """The loop's timing so far (None before :meth:`run`)."""
+        return self._stats
 
     def _t_last(self) -> float:
         """Flight time of the last period that computed a command (0 before the first)."""

@@ -4,13 +4,21 @@ Paths (assembly, log directory) are relative to the config file. Unknown keys ar
 the key path. Backends: ``sim`` (PyBullet in this process, with a virtual mocap), ``crazyflie`` (one cflib link
 per module: Crazyradio, or UDP to simulated modules from ``groundstation sim-peer``) and ``mavlink`` (one
 pymavlink connection per PX4 module: serial, UDP, or ``groundstation sim-peer --protocol mavlink``).
+
+Every number has a physical bound, checked by :func:`load_flight_config` before anything is opened: a bound of
+its own where one exists (``Field``), and where it depends on other keys or on the assembly (the loop rate the
+gains need, the mocap latency the stale bound must see, ...) in :func:`bound_issues`. Non-finite numbers are
+refused everywhere (``allow_inf_nan=False``).
 """
 
 from __future__ import annotations
 
+import ipaddress
+import math
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 from pydantic.dataclasses import dataclass
@@ -18,10 +26,35 @@ from pydantic.dataclasses import dataclass
 from groundstation import config
 from groundstation.backends.section import BackendSection, SimSection
 from groundstation.control.geometric import Gains
+from groundstation.errors import ConfigError, GroundstationError
 from groundstation.runtime.flight import FailsafePolicy
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_DURATION_S = 3600.0
+"""Longest take-off, tracking, landing or trajectory period, s: no battery of these modules lasts an hour."""
+MAX_REACTION_S = 0.5
+"""Longest a failsafe may wait before it acts (stale mocap, a loop stall, a silent module, a slow link), s. In
+0.5 s an assembly that lost its lift falls g t^2 / 2 = 1.2 m, more than the flight height (h0 = 1 m), and one
+flying blind at 2 m/s moves 1 m: a failsafe that waits longer acts after the crash."""
+MAX_GEOFENCE_M = 100.0
+"""Largest geofence coordinate, m: motion capture covers tens of metres; a fence beyond it fences nothing."""
+MAX_MOCAP_SPEED = 50.0
+"""Largest ``mocap.max_speed``, m/s: racing quadrotors, the fastest multirotors, reach about 40 m/s; a larger
+bound turns the speed gate off."""
+MAX_PHYSICS_HZ = 2000.0
+"""Highest simulated physics rate, Hz. A PyBullet step costs ~0.13 ms (measured, 2 and 60 modules): at 2 kHz
+physics takes a quarter of each second of a real-time flight; at 10 kHz it falls behind real time."""
+BATTERY_CELLS = {"crazyflie": 1, "mavlink": 14}
+"""Most LiPo cells in series a module of each backend kind flies on: every Crazyflie has one; PX4 multirotors fly
+packs of up to 12-14 cells."""
+LOOP_DELAY_PERIODS = 1.5
+"""Delay of the sampled control loop, in control periods: the zero-order hold of the command (half a period)
+and one period of transport (the command is computed from a state measured up to a period earlier: the
+modules' gyro rates arrive with the echo of the previous command, mocap with its latency)."""
+MIN_STALL_PERIODS = 2.0
+"""Shortest stall bound, link timeout or link latency bound, in control periods: a healthy loop has one period
+between commands and a healthy link answers within one, so a bound of less than two fires in a healthy flight
+(and a stall or lost link stops the motors)."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -44,6 +77,15 @@ class TlsSection:
         if self.mutual and self.certificate is None:
             raise ValueError("mutual TLS needs this peer's certificate and private_key")
         return self
+
+
+def _loopback(endpoint: str) -> bool:
+    """A Zenoh endpoint (``proto/host:port``) on this machine only."""
+    host = endpoint.split("/", 1)[-1].rsplit(":", 1)[0].strip("[]").lower()
+    try:
+        return host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a name or a malformed address: not known to stay on this machine
+        return False
 
 
 _KEY_CHUNK = re.compile(r"[^/*$?#\s]+")
@@ -72,17 +114,21 @@ class MocapSection:
     rate_hz: float = Field(100.0, gt=0, le=1000)
     """Simulated mocap only: publish rate, Hz (camera systems run at 100-360 Hz; above 1 kHz is a typo)."""
     position_noise: float = Field(0.0005, ge=0)
-    """Simulated mocap only: position noise std, m."""
+    """Simulated mocap only: position noise std, m (bounded by the subscriber's gate: :func:`bound_issues`)."""
     attitude_noise_deg: float = Field(0.1, ge=0)
-    """Simulated mocap only: attitude noise std, deg."""
-    latency_s: float = Field(0.005, ge=0, le=1.0)
-    """Simulated mocap only: latency, s."""
-    max_speed: float = Field(10.0, gt=0)
-    """Poses implying faster motion than this are rejected as outliers, m/s."""
+    """Simulated mocap only: attitude noise std, deg (bounded likewise)."""
+    latency_s: float = Field(0.005, ge=0)
+    """Simulated mocap only: latency, s (with one sample interval below ``failsafe.mocap_timeout_s``:
+    :func:`bound_issues`)."""
+    max_speed: float = Field(10.0, gt=0, le=MAX_MOCAP_SPEED)
+    """Poses implying faster motion than this are rejected as outliers, m/s (at most :data:`MAX_MOCAP_SPEED`)."""
     tls: TlsSection | None = None
     """TLS on the mocap link (default: none, loopback)."""
     access_control: str | None = None
     """A JSON5 file holding Zenoh's ``access_control`` block (relative to this config)."""
+    key_file: str | None = None
+    """The key shared with the mocap bridge (``groundstation mocap-key``; relative to this config): samples
+    without its MAC are never used. Required, like TLS, on an endpoint that is not loopback."""
 
     @field_validator("body")
     @classmethod
@@ -98,28 +144,35 @@ class MocapSection:
     def _secure_endpoint(self) -> MocapSection:
         if self.tls is not None and not self.endpoint.startswith("tls/"):
             raise ValueError(f"with tls the endpoint must be tls/HOST:PORT, not {self.endpoint}")
+        if self.key_file is None and self.tls is None and not _loopback(self.endpoint):
+            raise ValueError(f"{self.endpoint} is not loopback: anyone on that network could publish poses; set "
+                             f"key_file (groundstation mocap-key) or tls")
         return self
 
 
 @dataclass(frozen=True, config=_STRICT)
 class TrajectorySection:
     kind: Literal["hover", "circle", "figure8"] = "figure8"
-    size: float = Field(0.6, gt=0)
+    size: float = Field(0.6, gt=0, le=MAX_GEOFENCE_M)
     """Figure-8 l0 or circle radius, m (the geofence bounds it)."""
-    period: float = Field(8.0, gt=0)
-    """Figure-8 t_c or circle period, s (preflight bounds the speed and acceleration it asks)."""
-    height: float = Field(1.0, gt=0)
-    """h0, m."""
+    period: float = Field(8.0, gt=0, le=MAX_DURATION_S)
+    """Figure-8 t_c or circle period, s (preflight bounds the speed and acceleration it asks; at most an hour)."""
+    height: float = Field(1.0, gt=0, le=MAX_GEOFENCE_M)
+    """h0, m (the geofence bounds it)."""
     duration: float = Field(16.0, gt=0, le=MAX_DURATION_S)
     """Tracking time, s (at most an hour: no battery lasts longer)."""
     roll_deg: float = 0.0
-    takeoff_s: float = Field(3.0, gt=0)
-    landing_s: float = Field(3.0, gt=0)
+    """Roll target while tracking, deg (below ``failsafe.max_tilt_deg``: :func:`bound_issues`)."""
+    takeoff_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
+    """Take-off time, s (at most an hour)."""
+    landing_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
+    """Landing time, s (at most an hour)."""
 
 
 @dataclass(frozen=True, config=_STRICT)
 class GainsSection:
-    """Controller gains (defaults and meaning: :class:`~groundstation.control.geometric.Gains`)."""
+    """Controller gains (defaults and meaning: :class:`~groundstation.control.geometric.Gains`): bandwidths, Hz,
+    and damping ratios. The loop rate bounds them (:func:`loop_rate_needed`)."""
 
     position_hz: float = Field(Gains.position_hz, gt=0)
     position_zeta: float = Field(Gains.position_zeta, gt=0)
@@ -127,31 +180,36 @@ class GainsSection:
     attitude_zeta: float = Field(Gains.attitude_zeta, gt=0)
 
 
+_FenceM = Annotated[float, Field(ge=-MAX_GEOFENCE_M, le=MAX_GEOFENCE_M)]
+
+
 @dataclass(frozen=True, config=_STRICT)
 class FailsafeSection:
     """The flight's failsafes (:class:`~groundstation.runtime.flight.FailsafePolicy` holds the defaults and what
     each means)."""
 
-    mocap_timeout_s: float = Field(FailsafePolicy.mocap_timeout_s, gt=0)
+    mocap_timeout_s: float = Field(FailsafePolicy.mocap_timeout_s, gt=0, le=MAX_REACTION_S)
     on_mocap_stale: Literal["land", "stop"] = FailsafePolicy.on_mocap_stale
     on_mocap_fault: Literal["land", "stop"] = FailsafePolicy.on_mocap_fault
     """A second publisher on the body's key (its samples are never used)."""
     max_tilt_deg: float = Field(FailsafePolicy.max_tilt_deg, gt=0, le=180)
-    geofence_lower: tuple[float, float, float] = FailsafePolicy.geofence_lower
-    geofence_upper: tuple[float, float, float] = FailsafePolicy.geofence_upper
-    max_link_latency_s: float = Field(FailsafePolicy.max_link_latency_s, gt=0)
+    geofence_lower: tuple[_FenceM, _FenceM, _FenceM] = FailsafePolicy.geofence_lower
+    geofence_upper: tuple[_FenceM, _FenceM, _FenceM] = FailsafePolicy.geofence_upper
+    """m, each coordinate within +-:data:`MAX_GEOFENCE_M`."""
+    max_link_latency_s: float = Field(FailsafePolicy.max_link_latency_s, gt=0, le=MAX_REACTION_S)
     """crazyflie: a module's command round trip beyond this (median of its newest echoes) is a degraded link, s."""
-    link_stop_latency_s: float = Field(FailsafePolicy.link_stop_latency_s, gt=0)
+    link_stop_latency_s: float = Field(FailsafePolicy.link_stop_latency_s, gt=0, le=MAX_REACTION_S)
     """crazyflie: beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
     max_link_loss: float = Field(FailsafePolicy.max_link_loss, gt=0, le=1)
     """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded."""
     on_link_degraded: Literal["land", "stop"] = FailsafePolicy.on_link_degraded
-    max_stall_s: float = Field(FailsafePolicy.max_stall_s, gt=0)
+    max_stall_s: float = Field(FailsafePolicy.max_stall_s, gt=0, le=MAX_REACTION_S)
     """A gap between control periods beyond this stops the motors (the modules have stopped theirs), s."""
     on_log_failure: Literal["land", "continue"] = FailsafePolicy.on_log_failure
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
     max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
-    """Airborne, the measured position farther than this from the reference lands the flight, m."""
+    """Airborne, the measured position farther than this from the reference lands the flight, m (below the
+    geofence's diagonal: :func:`bound_issues`)."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -173,10 +231,21 @@ class FlightConfig:
     failsafe: FailsafeSection = FailsafeSection()
 
 
+def mocap_mac_key(m: MocapSection, base: Path, src: str):
+    """The mocap key of ``mocap.key_file`` (None: unauthenticated), a ConfigError naming the key if it is bad."""
+    from groundstation.mocap.auth import load_key_file
+
+    if m.key_file is None:
+        return None
+    try:
+        return load_key_file(base / m.key_file)
+    except GroundstationError as exc:
+        raise ConfigError(str(exc), path=src, key="mocap.key_file") from None
+
+
 def mocap_security(m: MocapSection, base: Path, src: str):
     """The Zenoh security of the mocap link (None: plain), its files resolved against ``base``; a missing file
-    is a ConfigError naming the key."""
-    from groundstation.errors import ConfigError
+    (or an access-control file that is not text) is a ConfigError naming the key."""
     from groundstation.mocap.zenoh_link import Security
 
     def existing(value: str | None, key: str) -> str | None:
@@ -190,15 +259,167 @@ def mocap_security(m: MocapSection, base: Path, src: str):
     if m.tls is None and m.access_control is None:
         return None
     acl_path = existing(m.access_control, "mocap.access_control")
+    try:
+        acl = config.read_text(acl_path) if acl_path else None
+    except ConfigError as exc:
+        raise ConfigError(str(exc), path=src, key="mocap.access_control") from None
     t = m.tls
     return Security(root_ca=existing(t.root_ca, "mocap.tls.root_ca") if t else None,
                     certificate=existing(t.certificate, "mocap.tls.certificate") if t else None,
                     private_key=existing(t.private_key, "mocap.tls.private_key") if t else None,
-                    mutual=t.mutual if t else True,
-                    access_control=Path(acl_path).read_text() if acl_path else None)
+                    mutual=t.mutual if t else True, access_control=acl)
+
+
+def loop_rate_needed(natural_hz: float, zeta: float) -> float:
+    """The least control-loop rate, Hz, that realises a loop of natural frequency ``natural_hz`` (Hz) and damping
+    ratio ``zeta``: the rule is that sampling may take at most half the loop's phase margin.
+
+    The geometric controller closes each axis as a PD loop on a double integrator (gains scaled by the mass and
+    inertia, so the loop's natural frequency is the configured bandwidth ``w``): the open loop
+    ``L(s) = (w^2 + 2 zeta w s) / s^2`` crosses over at ``w_c = w sqrt(2 zeta^2 + sqrt(4 zeta^4 + 1))`` with a
+    phase margin ``PM = atan(2 zeta w_c / w)``. Run at a rate ``f`` it lags by :data:`LOOP_DELAY_PERIODS` periods
+    (hold and transport), ``1.5 w_c / f`` rad at the crossover; keeping that within ``PM / 2`` needs
+    ``f >= 3 w_c / PM``. Why half: at that bound the loop sampled with one period of delay goes unstable at 1.9 to
+    2.0 times the bandwidth (same damping) for any damping from 0.05 to 20 (the tests check it against the exact
+    discrete loop), so every loop keeps the same margin whatever its damping. For the
+    defaults (4 Hz, zeta 0.9) this asks 110 Hz: the natural frequency stays at a 14th of the Nyquist rate, half
+    the frequency (a 7th of Nyquist) at which the delayed sampled loop goes unstable. Very low damping asks more
+    (its margin is small to begin with), very high damping too (its fast pole is at ``~2 zeta w``).
+    """
+    w = 2 * math.pi * natural_hz
+    wc = w * math.sqrt(2 * zeta * zeta + math.hypot(2 * zeta * zeta, 1.0))
+    pm = math.atan2(2 * zeta * wc, w)
+    return 2 * LOOP_DELAY_PERIODS * wc / pm
+
+
+def axis_coupling(inertia) -> list[float]:
+    """The eigenvalues ``mu`` of ``J^-1 diag(J)`` for an inertia ``J`` (kg m^2, body frame): the attitude gains
+    scale with ``diag(J)``, so a mode of the linearised attitude loop has natural frequency ``w sqrt(mu)`` and
+    damping ``zeta sqrt(mu)`` (all 1 for principal axes; 0.79-1.35 for the shipped assemblies)."""
+    import numpy as np
+
+    j = np.asarray(inertia, dtype=float)
+    return sorted(float(mu) for mu in np.linalg.eigvals(np.linalg.solve(j, np.diag(np.diag(j)))).real)
+
+
+def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
+    """The bounds that depend on other keys or on the assembly (``inertia``: its inertia, kg m^2, body frame):
+    ``(key, problem)`` for each key beyond its bound. The rules, and why:
+
+    * ``gains.*_hz`` and ``*_zeta``: the loop rate realises them (:func:`loop_rate_needed`); the loop runs at
+      ``rate_hz``, or at the simulator's ``backend.physics_hz`` if slower (the plant changes no faster); the
+      attitude loop per mode of :func:`axis_coupling`;
+    * ``backend.physics_hz``: at most :data:`MAX_PHYSICS_HZ`; ``backend.motor_time_constant``: below the attitude
+      loop's time constant ``1 / (2 pi attitude_hz sqrt(mu_max))``, or the rotors cannot follow the loop
+      (measured, the V at 4 Hz: flies with 1.5 times it, tips over at 2.5 times);
+    * ``backend.link_timeout_s``: between :data:`MIN_STALL_PERIODS` periods and :data:`MAX_REACTION_S`;
+      ``radio_capacity_hz`` at most 1000 (a Crazyradio carries 450-500 round trips a second: twice that would let
+      the radio budget pass dongles that drop packets); ``pwm_min`` in 800-1400 and ``pwm_max`` in 1600-2200 us (PX4's
+      own ranges of PWM_MAIN_MIN and PWM_MAIN_MAX); ``min_battery_v`` below a full battery (:data:`BATTERY_CELLS`);
+      these belong to the backend sections (:mod:`groundstation.backends.section`) and are checked here until
+      they have them;
+    * ``mocap.latency_s``: with one sample interval (``1 / mocap.rate_hz``), below ``failsafe.mocap_timeout_s``:
+      the newest pose of a working stream is that old, so a longer latency makes every pose stale on arrival;
+    * ``mocap.position_noise``, ``attitude_noise_deg``: 3 standard deviations of the difference of two samples
+      (``3 sqrt(2) sigma``) inside the subscriber's position and attitude gates, or genuine poses are rejected;
+    * ``trajectory.roll_deg``: below ``failsafe.max_tilt_deg``, or the target itself trips the tilt failsafe;
+    * ``failsafe.max_stall_s``: at least :data:`MIN_STALL_PERIODS` control periods;
+      ``failsafe.max_link_latency_s``: at least that too, and below ``link_stop_latency_s`` (degraded, land,
+      before too slow, stop);
+    * ``failsafe.max_tracking_error_m``: below the geofence's diagonal; no two points inside the fence are
+      farther apart, so a larger bound could only fire outside, after the geofence stopped the motors.
+    """
+    from groundstation.assembly.module import FULL_CELL_V
+    from groundstation.mocap.zenoh_link import SubscriberSettings
+
+    period = 1.0 / cfg.rate_hz
+    rate, rate_key = cfg.rate_hz, "rate_hz"
+    physics_hz = getattr(cfg.backend, "physics_hz", None)
+    if physics_hz is not None and physics_hz < rate:
+        rate, rate_key = physics_hz, "backend.physics_hz"
+    g = cfg.gains
+    mus = axis_coupling(inertia)
+    for loop, modes in (("position", [1.0]), ("attitude", mus)):
+        hz, zeta = getattr(g, f"{loop}_hz"), getattr(g, f"{loop}_zeta")
+        need = max(loop_rate_needed(hz * math.sqrt(mu), zeta * math.sqrt(mu)) for mu in modes)
+        if need > rate:
+            inertia_note = " with this assembly's inertia" if loop == "attitude" else ""
+            yield (f"gains.{loop}_hz",
+                   f"{hz:g} Hz at {loop}_zeta = {zeta:g}{inertia_note} needs a control loop of at least {need:.4g} Hz, "
+                   f"the loop runs at {rate:g} Hz ({rate_key}): at that rate at most {hz * rate / need:.3g} Hz "
+                   f"(sampling and a period of delay may take at most half the phase margin)")
+    b = cfg.backend
+    if physics_hz is not None and physics_hz > MAX_PHYSICS_HZ:
+        yield "backend.physics_hz", f"{physics_hz:g} Hz is above {MAX_PHYSICS_HZ:g} Hz (a step costs ~0.13 ms)"
+    tau = getattr(b, "motor_time_constant", None)
+    attitude_tau = 1.0 / (2 * math.pi * g.attitude_hz * math.sqrt(mus[-1]))
+    if tau is not None and tau > attitude_tau:
+        yield ("backend.motor_time_constant", f"{tau:g} s is slower than the attitude loop ({attitude_tau:.3g} s "
+                                              f"at gains.attitude_hz = {g.attitude_hz:g}): the rotors cannot follow it")
+    timeout = getattr(b, "link_timeout_s", None)
+    if timeout is not None and not MIN_STALL_PERIODS * period <= timeout <= MAX_REACTION_S:
+        yield ("backend.link_timeout_s", f"{timeout:g} s is outside {MIN_STALL_PERIODS * period:g}.."
+                                         f"{MAX_REACTION_S:g} s (two control periods: healthy modules would be "
+                                         f"lost; longer: the assembly has fallen before the failsafe acts)")
+    capacity = getattr(b, "radio_capacity_hz", None)
+    if capacity is not None and capacity > 1000:
+        yield "backend.radio_capacity_hz", f"{capacity:g} packets/s is above 1000 (a Crazyradio carries 450-500)"
+    for key, lo, hi in (("pwm_min", 800, 1400), ("pwm_max", 1600, 2200)):
+        value = getattr(b, key, None)
+        if value is not None and not lo <= value <= hi:
+            yield f"backend.{key}", f"{value} us is outside PX4's range {lo}..{hi} us"
+    cells = BATTERY_CELLS.get(b.kind)
+    if cells is not None and b.min_battery_v >= cells * FULL_CELL_V:
+        yield ("backend.min_battery_v", f"{b.min_battery_v:g} V is not below a full battery of {cells} cell(s) "
+                                        f"({cells * FULL_CELL_V:g} V): no module could fly")
+
+    m, f, t = cfg.mocap, cfg.failsafe, cfg.trajectory
+    oldest = m.latency_s + 1.0 / m.rate_hz
+    if oldest >= f.mocap_timeout_s:
+        yield ("mocap.latency_s", f"{m.latency_s:g} s plus a sample interval ({1.0 / m.rate_hz:g} s at mocap.rate_hz) "
+                                  f"is not below failsafe.mocap_timeout_s = {f.mocap_timeout_s:g} s: every pose "
+                                  f"would be stale")
+    gates = SubscriberSettings()
+    for key, sigma, gate, unit in (("position_noise", m.position_noise, gates.position_gate, "m"),
+                                   ("attitude_noise_deg", m.attitude_noise_deg, gates.attitude_gate_deg, "deg")):
+        if 3 * math.sqrt(2) * sigma > gate:
+            yield (f"mocap.{key}", f"{sigma:g} {unit} is above {gate / (3 * math.sqrt(2)):.3g} {unit}: genuine poses "
+                                   f"would fall outside the subscriber's {gate:g} {unit} gate")
+    if abs(t.roll_deg) >= f.max_tilt_deg:
+        yield ("trajectory.roll_deg", f"{t.roll_deg:g} deg is not below failsafe.max_tilt_deg = {f.max_tilt_deg:g} "
+                                      f"deg: the target would trip the tilt failsafe")
+    floor = MIN_STALL_PERIODS * period
+    for key in ("max_stall_s", "max_link_latency_s"):
+        if getattr(f, key) < floor:
+            yield (f"failsafe.{key}", f"{getattr(f, key):g} s is shorter than two control periods ({floor:g} s at "
+                                      f"rate_hz = {cfg.rate_hz:g}): it would fire in a healthy flight")
+    if f.max_link_latency_s >= f.link_stop_latency_s:
+        yield ("failsafe.max_link_latency_s", f"{f.max_link_latency_s:g} s is not below failsafe.link_stop_latency_s "
+                                              f"= {f.link_stop_latency_s:g} s: a slow link would stop, never land")
+    diagonal = math.dist(f.geofence_lower, f.geofence_upper)
+    if f.max_tracking_error_m >= diagonal:
+        yield ("failsafe.max_tracking_error_m", f"{f.max_tracking_error_m:g} m is not below the geofence's diagonal "
+                                                f"({diagonal:.3g} m): it could never fire inside the fence")
+
+
+def read_assembly(path: Path):
+    """The assembly file at ``path``, read as text first (:func:`groundstation.config.read_json`: size-capped,
+    no binary files), then validated like :func:`~groundstation.assembly.assembly_file.load_assembly`."""
+    from groundstation.assembly.assembly_file import assembly_from_record
+
+    return assembly_from_record(config.read_json(path), str(path))
 
 
 def load_flight_config(path: str | Path) -> tuple[FlightConfig, Path]:
-    """The validated config and the directory its relative paths start from."""
+    """The validated config and the directory its relative paths start from. Every key within its bounds,
+    those that depend on the assembly included (:func:`bound_issues`): the first key beyond one is a
+    :class:`ConfigError` naming the file and the key."""
     p = Path(path)
-    return config.load(FlightConfig, p), p.resolve().parent
+    cfg, base = config.load(FlightConfig, p), p.resolve().parent
+    try:
+        assembly = read_assembly(base / cfg.assembly)
+    except ConfigError as exc:
+        raise ConfigError(str(exc), path=str(path), key="assembly") from None
+    for key, problem in bound_issues(cfg, assembly.inertia):
+        raise ConfigError(problem, path=str(path), key=key)
+    return cfg, base

@@ -8,13 +8,17 @@ wall time at the start of every period. ``crazyflie`` drives one cflib link per 
 whatever publishes them on Zenoh: a mocap bridge, or ``groundstation sim-peer``, which simulates the modules behind
 their real wire protocol in another process. A hardware flight never imports the simulator.
 
-Operator: the first Ctrl-C (or SIGTERM) lands, a second one stops the motors at once. Every exit path ends with
-the motors off and the MCAP file finalized: a normal landing disarms the modules (they can fly again at once),
-every other path sends the emergency stop.
+Operator: the first Ctrl-C (or SIGTERM, SIGHUP) lands, a second one stops the motors at once; before arming, the
+first ends the flight unarmed (``aborted``), a second interrupts whatever it waits for. Every exit path ends with
+the motors off and the MCAP file finalized, its end (phase and reason) in it: a normal landing disarms the modules
+(they can fly again at once), every other path sends the emergency stop. The log file is claimed exclusively: an
+existing file is never overwritten. A flight that landed as planned but beyond its :class:`QualityBounds` is
+``degraded`` (:attr:`FlyResult.degraded`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import signal
@@ -38,11 +42,12 @@ from groundstation.control.geometric import Gains
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.trajectory import Circle, Figure8, FlightPlan, Hover, make_track
-from groundstation.errors import ConfigError, PreflightError
+from groundstation.errors import ConfigError, PreflightError, UsageError
 from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
-from groundstation.flightlog.mcap_log import FlightLog
+from groundstation.flightlog.mcap_log import FlightLog, claim
 from groundstation.loop_activity import LoopActivity
+from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PoseSubscriber, Security, SubscriberSettings, open_session, pose_key
 from groundstation.runtime.closed_loop import (
     FlightVolume,
@@ -51,10 +56,25 @@ from groundstation.runtime.closed_loop import (
     hover_check,
     volume_check,
 )
-from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, Requests
-from groundstation.runtime.flight_config import FlightConfig, TrajectorySection, load_flight_config, mocap_security
+from groundstation.runtime.flight import (
+    FailsafePolicy,
+    Flight,
+    MocapIntegrity,
+    QualityBounds,
+    Requests,
+    degradation,
+    operator_landing,
+)
+from groundstation.runtime.flight_config import (
+    FlightConfig,
+    TrajectorySection,
+    load_flight_config,
+    mocap_mac_key,
+    mocap_security,
+)
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopStats, WallClock, realtime_priority
-from groundstation.runtime.metrics import FlightSummary
+from groundstation.runtime.metrics import FlightMetrics, FlightSummary
+from groundstation.runtime.placement import placement_issues
 
 PREFLIGHT_TIMEOUT_S = 3.0
 PREFLIGHT_WATCH_S = 1.0
@@ -79,6 +99,9 @@ class Faults:
     """The backend reports its link lost."""
     tied_down: bool = False
     """The assembly is fixed where it is (a forgotten tie-down, a snagged cable): the rotors spin, it stays."""
+    pose_stamp: float | None = None
+    """The mocap samples logged meanwhile carry this publish stamp instead of theirs (a source whose clock is broken:
+    NaN, negative, in milliseconds); the log writer must reject them, not fail. The estimate is not affected."""
 
 
 @dataclass
@@ -91,12 +114,19 @@ class FlyResult:
     metrics: FlightSummary
     events: list = field(default_factory=list)
     log_error: str | None = None
-    """Why the log writer failed (None: the log is complete)."""
+    """Why the log writer failed or hung (None: the log is complete)."""
+    log_rejected: dict = field(default_factory=dict)
+    """Messages the log writer did not write, by topic and why (a stamp that is not a time): counted, not fatal."""
+    degraded: tuple[str, ...] = ()
+    """What went beyond the flight's :class:`QualityBounds`, one phrase each (empty: within them; judged only for a
+    flight that landed as planned or as the operator asked)."""
 
     @property
     def nominal(self) -> bool:
-        """Landed as planned or as the operator asked, with a complete log; a failsafe landing is not nominal."""
-        return self.phase == Phase.DONE and self.reason in ("", "operator land") and self.log_error is None
+        """Landed as planned or as the operator asked, with a complete log; a failsafe landing is not nominal. (A
+        nominal flight may still be :attr:`degraded`.)"""
+        return self.phase == Phase.DONE and (self.reason == "" or operator_landing(self.reason)) and \
+            self.log_error is None
 
 
 MOCAP_STATS_S = 1.0
@@ -118,7 +148,9 @@ class _LoggedPose:
         for t_mono, payload, stamp in self._sub.drain_raw():
             # Log time: when the pose arrived (the flight's clock); publish time: when the mocap measured it (the
             # publisher's wall clock, the stamp inside the payload).
-            self._log.raw_protobuf(self._topic, PoseInFrame, payload, self._to_log(t_mono), publish_time=stamp)
+            bad = self._faults.pose_stamp
+            self._log.raw_protobuf(self._topic, PoseInFrame, payload, self._to_log(t_mono),
+                                   publish_time=stamp if bad is None else bad)
         now = time.monotonic()
         last, accepted = self._stats_at
         if now - last >= MOCAP_STATS_S:
@@ -127,7 +159,9 @@ class _LoggedPose:
             self._log.record("/mocap/stats", {"received": sub.received, "accepted": sub.accepted,
                                               "rejected": sub.rejected, "malformed": sub.malformed,
                                               "missed": sub.missed, "foreign": sub.foreign,
-                                              "resyncs": sub.resyncs, "rate_hz": rate}, self._to_log(now))
+                                              "unauthenticated": sub.unauthenticated, "bad_stamps": sub.bad_stamps,
+                                              "conflicts": sub.conflicts, "resyncs": sub.resyncs, "rate_hz": rate},
+                             self._to_log(now))
             self._stats_at = (now, sub.accepted)
         s = self._sub.state()
         if s is not None and self._faults.corrupt_pose:
@@ -166,8 +200,10 @@ def _firmware_param_issues(cfg: FlightConfig, base: Path, src: str, cache_dir: P
         wanted = required_params(cfg.backend, base)
     except ConfigError as exc:
         raise ConfigError(str(exc), path=src, key="backend.firmware_params") from None
-    bad = param_issues(check_modules(cfg.backend, wanted, cache_dir=cache_dir))
-    return [f"firmware parameter: {b} (fix with: groundstation params {src} --apply)" for b in bad]
+    checks = check_modules(cfg.backend, wanted, cache_dir=cache_dir)
+    fixable = [c for c in checks if not c.unreachable]  # --apply cannot fix a module it cannot reach
+    return ([f"firmware parameter: {b} (fix with: groundstation params {src} --apply)" for b in param_issues(fixable)]
+            + [f"firmware parameter: {b}" for b in param_issues([c for c in checks if c.unreachable])])
 
 
 @dataclass(frozen=True)
@@ -189,6 +225,8 @@ class _Prepared:
     """Zenoh key of the body's pose."""
     security: Security | None
     log_file: Path
+    mac_key: MocapKey | None = None
+    """The mocap key (``mocap.key_file``): the subscriber uses no sample without its MAC."""
 
 
 def prepare(config_path: str | Path, duration: float | None = None, log_path: str | Path | None = None) -> _Prepared:
@@ -228,30 +266,77 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
     security = mocap_security(cfg.mocap, base, src)
     for issue_key, issue in load(kind.config_issues)(cfg, assembly) if kind.config_issues else ():
         raise ConfigError(issue, path=src, key=issue_key)
-    stamp_name = time.strftime("flight-%Y%m%d-%H%M%S.mcap")
-    log_file = Path(log_path) if log_path else (base / cfg.log_dir).resolve() / stamp_name
+    mac_key = mocap_mac_key(cfg.mocap, base, src)
+    log_file = _claim_log(log_path, (base / cfg.log_dir).resolve(), src)
+    return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file, mac_key)
+
+
+AUTO_NAMES = 1000
+"""Most logs one log directory takes in one second (``flight-<date>-<time>[-k].mcap``)."""
+
+
+def _claim_log(log_path: str | Path | None, log_dir: Path, src: str) -> Path:
+    """Claim the flight's log file: created empty and exclusively, so a log is never overwritten and of two flights
+    given one ``--log`` only one gets it. ``--log`` naming a file that exists is refused; in the config's
+    ``log_dir`` a name taken (two flights in one second) gets the next free ``-k``."""
+    if log_path:
+        path = Path(log_path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            claim(path)
+        except FileExistsError:
+            raise UsageError(f"--log {path}: the file exists; a flight log is never overwritten") from None
+        except OSError as exc:
+            raise ConfigError(f"the log file cannot be written: {exc}", path=src, key="--log") from None
+        return path
+    stamp = time.strftime("flight-%Y%m%d-%H%M%S")
     try:
-        log_file.parent.mkdir(parents=True, exist_ok=True)
-        log_file.touch()
+        log_dir.mkdir(parents=True, exist_ok=True)
+        for k in range(AUTO_NAMES):
+            path = log_dir / (f"{stamp}-{k}.mcap" if k else f"{stamp}.mcap")
+            with contextlib.suppress(FileExistsError):
+                claim(path)
+                return path
     except OSError as exc:
         raise ConfigError(f"log directory cannot be written: {exc}", path=src, key="log_dir") from None
-    return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file)
+    raise ConfigError(f"{AUTO_NAMES} logs named {stamp}* exist already", path=src, key="log_dir")
 
 
 def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
         requests: Requests | None = None, faults: Faults | None = None,
         on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
-        activity: LoopActivity | None = None, live_port: int | None = None) -> FlyResult:
+        activity: LoopActivity | None = None, live_port: int | None = None,
+        bounds: QualityBounds | None = None) -> FlyResult:
     """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
     thread (e.g. a status display) work between control periods, like the log writer does. ``live_port``: serve
     the log's channels over the Foxglove WebSocket protocol on 127.0.0.1 while flying (from the writer process).
+    ``handle_signals``: SIGINT, SIGTERM and SIGHUP land (or, before arming, end the flight unarmed), from the
+    start. ``bounds``: how far a flight may degrade and still be nominal (:attr:`FlyResult.degraded`).
 
     Stages: :func:`prepare` (input), open (the world of the backend kind, Zenoh, the log), :func:`_preflight`,
-    :func:`_run`, and the summary; the ``with`` block closes everything in reverse order, motors first."""
-    p = prepare(config_path, duration, log_path)
-    faults = faults or Faults()
+    :func:`_run`, and the end; the ``with`` block closes everything in reverse order, motors first. The end (phase,
+    reason, figures) is logged on every way out once the log is open: a landing, an emergency, a refused
+    preflight, the operator before arming, a crash of the loop (re-raised after)."""
     requests = requests or Requests()
-    activity = activity or LoopActivity()
+    started = threading.Event()
+    """Set when the flight loop starts or the flight ends before it; until then a second signal interrupts whatever
+    the flight waits for."""
+    restore = _install_signals(requests, started) if handle_signals else None
+    try:
+        return _fly(config_path, duration, log_path, requests, faults or Faults(), on_period, on_status,
+                    activity or LoopActivity(), live_port, bounds or QualityBounds(), started)
+    finally:
+        if restore is not None:
+            restore()
+
+
+class _Stopped(Exception):
+    """The operator ended the flight before it armed (the reason is the message)."""
+
+
+def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on_period, on_status,
+         activity: LoopActivity, live_port: int | None, bounds: QualityBounds, started: threading.Event) -> FlyResult:
+    p = prepare(config_path, duration, log_path)
     ended_cleanly = [False]
     offset = time.time() - time.monotonic()
 
@@ -259,54 +344,113 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
         """Log time (s since the epoch) of a monotonic time: every record of the flight uses this one clock."""
         return mono + offset
 
-    with ExitStack() as stack:
-        m = p.cfg.mocap
-        ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
-        # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
-        firmware_issues = _firmware_param_issues(p.cfg, p.base, p.src, p.log_file.parent)
-        world = stack.enter_context(load(p.kind.world)(p.assembly, p.cfg, p.key, theirs, faults, activity,
-                                                       p.security))
-        gs_session = open_session(listen=ours, connect=theirs, security=p.security)
-        stack.callback(gs_session.close)
-        sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed))
-        stack.callback(sub.close)
-        log = FlightLog(p.log_file, {"config": json.dumps(asdict(p.cfg)), "config_path": p.src,
-                                     "code_version": code_version(),
-                                     "assembly": json.dumps(assembly_record(p.assembly))}, activity=activity,
-                        live_port=live_port)
-        stack.callback(log.close)
-        # Registered last, so it runs first on the way out, before the log and Zenoh close: a flight that landed
-        # is disarmed already; armed modules on any other way out (an exception, Ctrl-C) get the emergency stop.
-        # Modules never armed (a refused preflight or arming) are not stopped: the stop latches until a reboot.
-        stack.callback(lambda: None if ended_cleanly[0] or not world.backend.armed else world.backend.emergency_stop())
-        pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
+    log: FlightLog | None = None
+    try:
+        with ExitStack() as stack:
+            m = p.cfg.mocap
+            ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
+            # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
+            firmware_issues = _firmware_param_issues(p.cfg, p.base, p.src, p.log_file.parent)
+            world = stack.enter_context(load(p.kind.world)(p.assembly, p.cfg, p.key, theirs, faults, activity,
+                                                           p.security, p.mac_key))
+            gs_session = open_session(listen=ours, connect=theirs, security=p.security)
+            stack.callback(gs_session.close)
+            sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed), mac_key=p.mac_key)
+            stack.callback(sub.close)
+            log = FlightLog(p.log_file, {"config": json.dumps(asdict(p.cfg)), "config_path": p.src,
+                                         "code_version": code_version(),
+                                         "assembly": json.dumps(assembly_record(p.assembly))}, activity=activity,
+                            live_port=live_port)
+            stack.callback(log.close)
+            # Registered last, so it runs first on the way out, before the log and Zenoh close: a flight that
+            # landed is disarmed already; armed modules on any other way out (an exception, Ctrl-C) get the
+            # emergency stop. Modules never armed (a refused preflight or arming) are not stopped: the stop latches
+            # until a reboot.
+            stack.callback(lambda: None if ended_cleanly[0] or not world.backend.armed
+                           else world.backend.emergency_stop())
+            pose = _LoggedPose(sub, log, f"/mocap/{m.body}", faults, to_log)
+            flight: Flight | None = None
+            why_not = ""
+            """Why the flight never ran (preflight refused, the operator, an error), for the end."""
+            wall0 = None
+            try:
+                plan = _preflight(p, world, sub, pose, log, firmware_issues, to_log, requests)
+                flight = Flight(p.assembly, plan, world.backend, pose, gains=Gains(**asdict(p.cfg.gains)),
+                                allocation=p.cfg.allocation, policy=FailsafePolicy(**asdict(p.cfg.failsafe)),
+                                log=log, requests=requests, before_period=world.before_period(on_period),
+                                to_log_time=to_log, truth=world.truth, on_status=on_status, activity=activity)
+                started.set()
+                wall0 = time.perf_counter()
+                _run(flight, p.cfg, log, to_log)
+            except _Stopped as exc:
+                started.set()  # ending: a signal from now on must not interrupt the end's logging
+                why_not = str(exc)
+            except BaseException as exc:
+                started.set()
+                why_not = str(exc) if isinstance(exc, PreflightError) else (
+                    requests.abort_reason("in preflight") if isinstance(exc, KeyboardInterrupt)
+                    else f"{type(exc).__name__}: {exc}")
+                _end(p, flight, why_not, _since(wall0), bounds, log, to_log)
+                raise
+            ended_cleanly[0] = flight is None or flight.phase in (Phase.DONE, Phase.ABORTED)
+            phase, reason, metrics, degraded = _end(p, flight, why_not, _since(wall0), bounds, log, to_log)
+    except BaseException:
+        if log is None:  # failed before its log opened: the claimed file, empty, goes (bad input leaves nothing)
+            _release(p.log_file)
+        raise
+    return FlyResult(p.log_file, phase, reason, metrics, flight.events if flight is not None else [], log.error,
+                     getattr(log, "rejected", {}), degraded)  # (benchmarks.sdk_log's stand-in counts none)
 
-        plan = _preflight(p, world, sub, pose, log, firmware_issues, to_log)
-        flight = Flight(p.assembly, plan, world.backend, pose, gains=Gains(**asdict(p.cfg.gains)),
-                        allocation=p.cfg.allocation, policy=FailsafePolicy(**asdict(p.cfg.failsafe)), log=log,
-                        requests=requests, before_period=world.before_period(on_period), to_log_time=to_log,
-                        truth=world.truth, on_status=on_status, activity=activity)
-        stats, wall_s = _run(flight, p.cfg, log, requests, handle_signals, to_log)
-        ended_cleanly[0] = flight.phase in (Phase.DONE, Phase.ABORTED)
-        metrics = flight_summary(flight, wall_s, plan.duration, stats)
-        log.record("/flight/summary", {k: v for k, v in asdict(metrics).items() if k != "loop"} | {
-            "phase": flight.phase, "reason": flight.reason}, to_log(time.monotonic()))
-    return FlyResult(p.log_file, flight.phase, flight.reason, metrics, flight.events, log.error)
+
+def _end(p: _Prepared, flight: Flight | None, why_not: str, wall_s: float, bounds: QualityBounds, log: FlightLog,
+         to_log: Callable[[float], float]) -> tuple[Phase, str, FlightSummary, tuple[str, ...]]:
+    """The flight's end (phase, reason, figures, what degraded beyond ``bounds``), logged (``/flight/summary``)."""
+    now = to_log(time.monotonic())
+    if flight is None or flight.phase == Phase.PREFLIGHT:  # never ran: nothing armed
+        phase, reason = Phase.ABORTED, why_not
+        metrics = FlightSummary.of(FlightMetrics(p.assembly.n).result(), realtime_factor=float("nan"),
+                                   planned_s=p.plan.duration, crashed=False, stalls=0)
+        log.event("warning", f"{Phase.PREFLIGHT} -> {phase}: {reason}", now)
+    else:
+        phase, reason = flight.phase, flight.reason
+        metrics = flight_summary(flight, wall_s, flight.plan.duration, flight.stats)
+    landed = phase == Phase.DONE and (reason == "" or operator_landing(reason))
+    degraded = degradation(metrics, bounds) if landed else ()
+    if degraded:
+        log.event("warning", "degraded beyond the flight's bounds: " + "; ".join(degraded), now)
+    log.record("/flight/summary", {k: v for k, v in asdict(metrics).items() if k != "loop"} | {
+        "phase": phase, "reason": reason, "degraded": list(degraded)}, now)
+    return phase, reason, metrics, degraded
+
+
+def _since(t0: float | None) -> float:
+    return time.perf_counter() - t0 if t0 is not None else 0.0
+
+
+def _release(path: Path) -> None:
+    """Remove a claimed log file nothing was written to."""
+    with contextlib.suppress(OSError):
+        if path.stat().st_size == 0:
+            path.unlink()
 
 
 def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, log: FlightLog,
-               firmware_issues: list[str], to_log: Callable[[float], float]) -> FlightPlan:
+               firmware_issues: list[str], to_log: Callable[[float], float], requests: Requests) -> FlightPlan:
     """Stage 3: let the mocap stream start (and a simulated assembly settle), check the backend, mocap, level and
-    stillness, log the scene; the plan re-anchored where mocap sees the assembly. Raises PreflightError."""
+    stillness, log the scene; the plan re-anchored where mocap sees the assembly. Raises PreflightError, or
+    :class:`_Stopped` when the operator asks to land or stop meanwhile (a signal, a key)."""
     m = p.cfg.mocap
     watch_start = time.monotonic()
     deadline = watch_start + PREFLIGHT_TIMEOUT_S
+    _stop_if_asked(requests)
     while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < PREFLIGHT_WATCH_S)
            and time.monotonic() < deadline):
         world.settle(0.02)
         time.sleep(0.005)
+        _stop_if_asked(requests)
     s = pose.state()
     issues = list(world.backend.preflight().issues) + firmware_issues
+    _stop_if_asked(requests)
     if sub.fault():
         issues.append(f"mocap: {sub.fault()}")
     if s is None:
@@ -316,6 +460,10 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, log:
             issues.append("assembly is not level")
         if np.linalg.norm(s.velocity) > STILL_SPEED:
             issues.append(f"assembly is moving ({np.linalg.norm(s.velocity):.2f} m/s)")
+        measured_up = world.backend.module_gravity()
+        if measured_up is not None:  # link i reaches the module at place i
+            names = [f"module {i} ({link})" for i, link in enumerate(p.cfg.backend.modules)]
+            issues += placement_issues(measured_up, p.assembly.module_rotations, s.rotation, names)
     reference = np.array([p.plan(t_ref).position for t_ref in np.arange(0.0, p.plan.duration, 0.05)])
     f = p.cfg.failsafe
     log.scene(p.assembly, to_log(time.monotonic()), reference, (tuple(f.geofence_lower), tuple(f.geofence_upper)))
@@ -330,16 +478,17 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, log:
     return plan
 
 
-def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, requests: Requests, handle_signals: bool,
-         to_log: Callable[[float], float]) -> tuple[LoopStats, float]:
-    """Stage 4: arm and fly at the config's rate (real-time priority if permitted); the loop's statistics and the
-    wall time."""
-    restore = _install_signals(requests) if handle_signals else None
+def _stop_if_asked(requests: Requests) -> None:
+    if requests.land.is_set() or requests.stop.is_set():
+        raise _Stopped(requests.abort_reason("in preflight"))
+
+
+def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, to_log: Callable[[float], float]) -> LoopStats:
+    """Stage 4: arm and fly at the config's rate (real-time priority if permitted); the loop's statistics."""
     # Background threads are Python too; by default a thread may hold the GIL for 5 ms before handing it
     # over, which shows up as overruns of a 2 ms period. Hand over every 100 us.
     switch = sys.getswitchinterval()
     sys.setswitchinterval(GIL_SWITCH_S)
-    wall0 = time.perf_counter()
     try:
         with realtime_priority(cfg.realtime_priority) as rt:
             if cfg.realtime_priority and not rt:
@@ -349,20 +498,24 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, requests: Requests, 
             stats = flight.run(WallClock(SPIN_RT_S if rt else SPIN_S), cfg.rate_hz, realtime=rt)
     finally:
         sys.setswitchinterval(switch)
-        if restore is not None:
-            restore()
-    return stats, time.perf_counter() - wall0
+    return stats
 
 
-def _install_signals(requests: Requests):
-    """First SIGINT/SIGTERM/SIGHUP: land. Second: stop the motors. Returns a function restoring the old handlers.
-    SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process, rotors on."""
+def _install_signals(requests: Requests, started: threading.Event):
+    """First SIGINT/SIGTERM/SIGHUP: land (before the loop starts: end the flight unarmed, at the next check).
+    Second: stop the motors; before the loop starts, nothing is armed, so it also interrupts whatever the flight
+    waits for (a link that does not open). The signal's name goes into the reason. Returns a function restoring the
+    old handlers. SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process,
+    rotors on."""
     if threading.current_thread() is not threading.main_thread():
         return None
 
     def handler(signum, frame):
+        requests.source = signal.Signals(signum).name
         if requests.land.is_set():
             requests.stop.set()
+            if not started.is_set():
+                raise KeyboardInterrupt
         requests.land.set()
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}

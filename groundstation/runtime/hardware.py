@@ -49,14 +49,14 @@ def open_mavlink(cfg: FlightConfig, assembly: Assembly) -> MavlinkBackend:
 
 class HardwareModules:
     """The world of a hardware flight: the backend :data:`~groundstation.backend_kinds.KINDS` names for the config's
-    kind, connected on entry and closed on exit. Same constructor as ``sim.world.SimulatedWorld``; the Zenoh and
-    fault arguments are the simulator's business and unused here."""
+    kind, connected on entry and closed on exit. Same constructor as ``sim.world.SimulatedWorld``; the Zenoh,
+    fault and mocap-key arguments are the simulator's business and unused here."""
 
     truth: Callable | None = None
     """No ground truth outside a simulator."""
 
     def __init__(self, assembly: Assembly, cfg: FlightConfig, key: str, listen: list[str], faults,
-                 activity: LoopActivity, security: Security | None = None) -> None:
+                 activity: LoopActivity, security: Security | None = None, mac_key=None) -> None:
         self.backend: Backend = load(backend_kind(cfg.backend.kind).opener)(cfg, assembly)
 
     def settle(self, dt: float) -> None:

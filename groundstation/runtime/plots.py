@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from groundstation.control.phase import Phase
+from groundstation.output import save_figure
 from groundstation.rotations import rotation_angle
 from groundstation.runtime.closed_loop import FlightRecord
 
@@ -49,7 +50,4 @@ def plot_flight(rec: FlightRecord, path: str | Path, title: str, u_max: float) -
             if starts is not None:
                 ax.axvline(starts, color="grey", lw=0.6, ls=":")
     fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)

@@ -215,3 +215,38 @@ def test_a_stale_disarmed_heartbeat_right_after_arming_is_not_a_disarm():
         stop.set()
         th.join(2)
         vehicle.close()
+
+
+def test_px4_attitude_round_trip_and_up_in_the_module_frame():
+    """PX4 reports the FRD frame in NED; the up direction recovered from its roll and pitch is the ENU world's z
+    in the module's FLU frame, for any attitude (checked against R^T e_z)."""
+    from groundstation.control.trajectory import euler_zyx, roll_pitch_yaw
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        rotation = euler_zyx(*rng.uniform(-1.2, 1.2, 2), rng.uniform(-3, 3))
+        roll, pitch, _ = roll_pitch_yaw(mw.px4_attitude(rotation))
+        np.testing.assert_allclose(mw.up_in_module(roll, pitch), rotation.T @ [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_module_gravity_and_two_links_to_one_vehicle():
+    peer, th = start_peer(14590, 7491)
+    try:
+        with MavlinkBackend(links(14590), U_MAX, ASM.module_rotations) as be:
+            assert be.preflight().ok
+            state = peer.sim.true_state()
+            expected = np.array([(state.rotation @ r).T @ [0.0, 0.0, 1.0] for r in ASM.module_rotations])
+            np.testing.assert_allclose(be.module_gravity(), expected, atol=2e-3)
+    finally:
+        stop_peer(peer, th)
+    peer, th = start_peer(14594, 7492)
+    try:
+        with MavlinkBackend(["udpout:127.0.0.1:14594", "udpout:127.0.0.1:14594"], U_MAX, ASM.module_rotations,
+                            MavlinkSettings(preflight_timeout=1.0)) as be:
+            issues = be.preflight().issues
+        # Both links reach the vehicle at 14594 (it answers whichever sent last): either both hear it and the
+        # system ids name the duplicate, or one never hears it.
+        assert ("module 0 (udpout:127.0.0.1:14594) and module 1 (udpout:127.0.0.1:14594) are one vehicle (system "
+                "id 1): two links reach it") in issues or any(i.endswith("does not answer") for i in issues), issues
+    finally:
+        stop_peer(peer, th)

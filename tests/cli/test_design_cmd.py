@@ -37,6 +37,9 @@ def test_infeasible_within_max(cli):
     (["design", TOY, "--workers", "0"], "--workers must be at least 1"),
     (["design", TOY, "--results", "r.txt"], "unsupported file type"),
     (["design", "missing.toml"], "missing.toml: file not found"),
+    (["design", TOY, "--sample", "2", "--sigma", "nan"], "Invalid value for '--sigma': 'nan' is not a finite"),
+    (["design", TOY, "--sample", "2", "--seed", "-5"], "--seed': -5 is not in the range x>=0"),
+    (["design", "/dev/zero"], "/dev/zero: not a text file"),
 ])
 def test_bad_input(cli, args, fragment):
     code, out, err = cli(*args)

@@ -36,6 +36,11 @@ def test_infeasible_exit_code(cli, tmp_path):
     (["optimize", TOY, "--topology", "oQ"], "--topology"),
     (["optimize", TOY, "--topology", "oE", "--starts", "a,b"], "--starts"),
     (["optimize", "missing.toml", "--topology", "oE"], "missing.toml: file not found"),
+    (["optimize", TOY, "--topology", "oE", "--starts", "nan"], "Invalid value for '--starts': 'nan' is not a finite"),
+    (["optimize", TOY, "--topology", "oE", "--starts", "20,1e400"], "'--starts': inf is not in the range"),
+    (["optimize", TOY, "--topology", "oE", "--starts", "120"], "--starts': 120.0 is not in the range -90<=x<=90"),
+    (["optimize", TOY, "--topology", "oE", "--seed", "-1"], "--seed': -1 is not in the range x>=0"),
+    (["optimize", "/dev/zero", "--topology", "oE"], "/dev/zero: not a text file"),
 ])
 def test_bad_input(cli, args, fragment):
     code, out, err = cli(*args)

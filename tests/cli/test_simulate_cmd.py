@@ -23,10 +23,20 @@ def test_json_metrics_and_plot(cli, tmp_path):
 
 @pytest.mark.parametrize("args, fragment", [
     (["simulate", "nope.json"], "nope.json: file not found"),
-    (["simulate", TOY, "--trajectory", "spiral"], "unknown trajectory"),
-    (["simulate", TOY, "--duration", "-1"], "--duration must be positive"),
+    (["simulate", TOY, "--trajectory", "spiral"], "--trajectory: Input should be 'hover', 'circle' or 'figure8'"),
+    (["simulate", TOY, "--duration", "-1"], "--duration: Input should be greater than 0"),
     (["simulate", TOY, "--height", "9"], "flight volume"),
-    (["simulate", TOY, "--allocation", "magic"], "unknown allocation"),
+    (["simulate", TOY, "--allocation", "magic"], "--allocation: Input should be 'clip' or 'bounded'"),
+    # absurd but valid by type: the bounds of a flight config
+    (["simulate", TOY, "--roll", "nan"], "Invalid value for '--roll': 'nan' is not a finite number"),
+    (["simulate", TOY, "--period", "inf"], "Invalid value for '--period': 'inf' is not a finite number"),
+    (["simulate", TOY, "--duration", "1e7"], "--duration: Input should be less than or equal to 3600"),
+    (["simulate", TOY, "--roll", "80"], "--roll: 80 deg is not below failsafe.max_tilt_deg"),
+    (["simulate", TOY, "--control-hz", "60"], "--control-hz: 4 Hz at attitude_zeta = 0.9"),
+    (["simulate", TOY, "--control-hz", "1e5"], "--control-hz: Input should be less than or equal to 1000"),
+    (["simulate", TOY, "--physics-hz", "1e9"], "--physics-hz: 1e+09 Hz is above 2000 Hz"),
+    (["simulate", TOY, "--physics-hz", "30"], "--physics-hz: 4 Hz at attitude_zeta = 0.9"),
+    (["simulate", "/dev/zero"], "/dev/zero: not a text file"),
 ])
 def test_bad_input(cli, args, fragment):
     code, out, err = cli(*args)

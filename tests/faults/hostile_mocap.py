@@ -1,13 +1,17 @@
 """A hostile publisher on a body's mocap key, in a process of its own (fault injection for the fault table).
 
     python -m tests.faults.hostile_mocap --connect tcp/127.0.0.1:7490 --key mocap/assembly/pose
-                                         --mode second|huge-seq|replay|drift|spoof|malformed [--after 5]
-                                         [--duration 10]
+                                         --mode second|huge-seq|replay|drift|spoof|malformed|copy-id|
+                                                nan-stamp|future-stamp|replay-captured [--after 5] [--duration 10]
 
 Modes: ``second`` publishes a plausible pose of its own (0.3 m off) at 100 Hz; ``huge-seq`` one sample with a
 sequence number of 2^40, then goes quiet; ``replay`` re-sends old sequence numbers; ``drift`` a pose that drifts
 away from the flight path at 5 cm/s; ``spoof`` the hover pose 5 cm off with the attitude 20 deg off; ``malformed``
-payloads that do not decode. It connects to the ground station's Zenoh endpoint (the ground station listens:
+payloads that do not decode. The next modes first read the genuine stream (any peer on the network can) and
+publish under its source id (copied from its samples): ``copy-id`` the genuine pose dragged off at 0.5 m/s, its
+sequence numbers one ahead of the genuine ones; ``nan-stamp`` samples whose stamp is NaN, infinite or negative;
+``future-stamp`` a pose 1 m off stamped 100 s ahead; ``replay-captured`` the genuine samples re-sent as captured
+(MACs included) 0.1 s later. It connects to the ground station's Zenoh endpoint (the ground station listens:
 ``mocap.listen = true``), waits ``--after`` seconds, then attacks.
 """
 
@@ -15,12 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import struct
 import time
 
 import numpy as np
 import zenoh
 
-from groundstation.mocap.codec import PoseSample, encode
+from groundstation.mocap.codec import PoseSample, decode, encode
 from groundstation.mocap.zenoh_link import PosePublisher
 from groundstation.rotations import rotvec_to_matrix
 
@@ -30,7 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--connect", required=True)
     ap.add_argument("--key", default="mocap/assembly/pose")
     ap.add_argument("--mode", required=True,
-                    choices=("second", "huge-seq", "replay", "drift", "spoof", "malformed"))
+                    choices=("second", "huge-seq", "replay", "drift", "spoof", "malformed", "copy-id", "nan-stamp",
+                             "future-stamp", "replay-captured"))
     ap.add_argument("--after", type=float, default=5.0)
     ap.add_argument("--duration", type=float, default=10.0)
     a = ap.parse_args(argv)
@@ -40,8 +46,13 @@ def main(argv: list[str] | None = None) -> int:
     cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
     cfg.insert_json5("connect/retry", '{period_init_ms: 50, period_max_ms: 50, period_increase_factor: 1}')
     session = zenoh.open(cfg)
+    captured: list[zenoh.Sample] = []
+    spy = session.declare_subscriber(a.key, captured.append)
     try:
         time.sleep(a.after)
+        if a.mode in ("copy-id", "nan-stamp", "future-stamp", "replay-captured"):
+            return _as_the_genuine_source(session, a, captured)
+        spy.undeclare()
         pub = PosePublisher(session, a.key)
         raw = session.declare_publisher(a.key)
         end = time.monotonic() + a.duration
@@ -68,6 +79,39 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(0.5)
     finally:
         session.close()
+    return 0
+
+
+def _as_the_genuine_source(session: zenoh.Session, a: argparse.Namespace, captured: list) -> int:
+    """The attacks that copy the genuine publisher's source id (read from its samples)."""
+    genuine = [s for s in captured if s.source_info is not None]
+    if not genuine:
+        raise SystemExit("no genuine sample heard: nothing to copy")
+    source = genuine[-1].source_info.source_id
+    raw = session.declare_publisher(a.key)
+    end = time.monotonic() + a.duration
+    k = 0
+    while time.monotonic() < end:
+        k += 1
+        newest = captured[-1]
+        seq = struct.unpack("<Qd", newest.attachment.to_bytes()[:16])[0] + 1
+        now = time.time()
+        if a.mode == "copy-id":  # the genuine pose, dragged away at 0.5 m/s: each sample inside the gates
+            pose = decode(newest.payload.to_bytes(), newest.attachment.to_bytes())
+            payload, att = encode(PoseSample(seq, now, pose.position + [0.005 * k, 0.0, 0.0], pose.rotation))
+        elif a.mode == "nan-stamp":
+            stamp = (float("nan"), float("inf"), -1.0)[k % 3]
+            payload = encode(PoseSample(seq, now, np.array([0.5, 0.0, 1.0]), np.eye(3)))[0]
+            att = struct.pack("<Qd", seq, stamp)
+        elif a.mode == "future-stamp":
+            payload, att = encode(PoseSample(seq, now + 100.0, np.array([1.0, 0.0, 1.0]), np.eye(3)))
+        else:  # replay-captured: what the genuine source sent 0.1 s ago, byte for byte
+            old = captured[max(0, len(captured) - 11)]
+            payload, att = old.payload.to_bytes(), old.attachment.to_bytes()
+            seq = struct.unpack("<Qd", att[:16])[0]
+        raw.put(payload, attachment=att, source_info=zenoh.SourceInfo(source, seq))
+        time.sleep(0.01)
+    time.sleep(0.5)
     return 0
 
 

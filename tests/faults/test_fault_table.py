@@ -111,10 +111,12 @@ def f_bad_input_unwritable_log_dir(cli, tmp_path):
 
 
 # -- mocap integrity: a hostile publisher in another process --------------------------------------------------------
-def _hostile_flight(tmp_path, mode: str, after: float = 5.5):
+def _hostile_flight(tmp_path, mode: str, after: float = 5.5, key_file: Path | None = None):
     """A dry run whose ground station listens for mocap (the simulator and the attacker connect to it), attacked
-    ``after`` s after its start; returns the flight's result and its log."""
-    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": "latency_s = 0.005\nlisten = true"})
+    ``after`` s after its start; with ``key_file`` the flight and its simulated mocap share that key (the attacker
+    has none). Returns the flight's result and its log."""
+    mocap = "latency_s = 0.005\nlisten = true" + (f'\nkey_file = "{key_file}"' if key_file else "")
+    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": mocap})
     attacker = subprocess.Popen([sys.executable, "-m", "tests.faults.hostile_mocap", "--connect", HOSTILE,
                                  "--mode", mode, "--after", str(after)], cwd=ROOT,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -123,7 +125,8 @@ def _hostile_flight(tmp_path, mode: str, after: float = 5.5):
         res = fly(cfg, duration=6.0, log_path=log)
     finally:
         attacker.kill()
-        attacker.wait(10)
+        _, err = attacker.communicate(timeout=10)
+    assert b"Traceback" not in err, err.decode()  # the attack ran as written
     return res, log
 
 
@@ -450,22 +453,36 @@ def f_module_rebooted_in_flight(cli, tmp_path):
     assert res.reason.endswith("the other modules cannot hold the assembly")
 
 
-@fault("a second ground station commanding one Crazyflie module in flight",
-       "the module named, motors off, exit 1")
-def f_second_sender_in_flight(cli, tmp_path):
+def _intruder(tokens):
+    """Another sender's stream to module 0, its sequence numbers ahead of the flight's, cycling through
+    ``tokens`` (the owner's token is one byte: a hostile sender can try them all)."""
     import socket
 
     from groundstation.backends import crtp_wire as wire
 
-    def intrude():  # another sender's stream, its sequence numbers ahead of the flight's
+    def intrude():
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             for k in range(200):
-                cmd = wire.MotorCommand((30000 + k) & 0xFFFF, True, wire.to_counts([0.5] * 4))
+                cmd = wire.MotorCommand((30000 + k) & 0xFFFF, True, wire.to_counts([0.5] * 4), tokens[k % len(tokens)])
                 s.sendto(bytes([wire.APP_HEADER]) + cmd.pack(), ("127.0.0.1", PEER_PORT))
                 time.sleep(0.004)
+    return intrude
 
+
+@fault("a second sender commanding one Crazyflie module in flight without the owner's token",
+       "the module drops its commands (not its owner's); the flight completes")
+def f_second_sender_in_flight(cli, tmp_path):
     with _crazyflie_peer(tmp_path) as cfg:
-        res = fly(cfg, duration=6.0, log_path=tmp_path / "intruder.mcap", on_period=_once_after(4.0, intrude))
+        res = fly(cfg, duration=6.0, log_path=tmp_path / "intruder.mcap", on_period=_once_after(4.0, _intruder([0])))
+    assert res.phase == "done" and res.nominal and res.metrics.pos_rmse_m < 0.03, res.reason
+
+
+@fault("a hostile sender trying every owner's token on one Crazyflie module in flight",
+       "the module named once it applies one, motors off (the V cannot fly on one module), exit 1")
+def f_token_guessing_sender_in_flight(cli, tmp_path):
+    with _crazyflie_peer(tmp_path) as cfg:
+        res = fly(cfg, duration=6.0, log_path=tmp_path / "guess.mcap",
+                  on_period=_once_after(4.0, _intruder(list(range(1, 256)))))
     assert res.phase == "emergency" and not res.nominal
     assert res.reason.startswith("module 0 takes commands from another sender (it applies sequence "), res.reason
 

@@ -30,13 +30,19 @@ def test_host_unit_tests_and_vectors(tmp_path):
     assert run.returncode == 0, run.stdout + run.stderr
     assert re.search(r"(\d+) checks, 0 failed", run.stdout)
     assert int(re.search(r"(\d+) checks", run.stdout).group(1)) > 100
-    assert "14 command and 3 state vectors, 0 failures" in run.stderr
+    assert "20 command and 6 state vectors, 0 failures" in run.stderr  # claims count as commands, identities as states
 
 
 def test_the_vector_file_is_what_python_encodes_and_c_encodes_what_python_decodes(tmp_path):
     assert VECTORS.read_text() == wire.vectors_text()  # regenerate: python -m groundstation.backends.crtp_wire
     run = make("host-test", tmp_path)
     assert run.returncode == 0, run.stderr
+    c_identities = [bytes.fromhex(h) for h in re.findall(r"identity-c line=\d+ hex=([0-9a-f]+)", run.stdout)]
+    assert len(c_identities) == len(wire.IDENTITY_VECTORS)
+    for raw, sent in zip(c_identities, wire.IDENTITY_VECTORS, strict=True):
+        got = wire.Identity.unpack(raw)
+        assert (got.flags, got.token, got.session, got.uid, got.acc_mg) == (
+            sent.flags, sent.token, sent.session, sent.uid, sent.acc_mg)
     c_states = [bytes.fromhex(h) for h in re.findall(r"state-c line=\d+ hex=([0-9a-f]+)", run.stdout)]
     assert len(c_states) == len(wire.STATE_VECTORS)
     for raw, sent in zip(c_states, wire.STATE_VECTORS, strict=True):
@@ -61,7 +67,12 @@ def test_cross_compiles_for_the_cortex_m4_with_hard_float(tmp_path):
 
 
 class _Command(ctypes.Structure):
-    _fields_ = [("sequence", ctypes.c_uint16), ("armed", ctypes.c_bool), ("counts", ctypes.c_uint16 * 4)]
+    _fields_ = [("sequence", ctypes.c_uint16), ("armed", ctypes.c_bool), ("token", ctypes.c_uint8),
+                ("counts", ctypes.c_uint16 * 4)]
+
+
+class _Owner(ctypes.Structure):
+    _fields_ = [("session", ctypes.c_uint32), ("token", ctypes.c_uint8)]
 
 
 class _Mailbox(ctypes.Structure):
@@ -82,9 +93,12 @@ def test_the_simulated_modules_gate_commands_exactly_as_the_c_app(tmp_path):
                                      ctypes.c_uint32]
     lib.mp_gate_forces.argtypes = [ctypes.POINTER(_Mailbox), ctypes.c_uint32, ctypes.c_uint32, ctypes.c_bool,
                                    ctypes.c_bool, ctypes.POINTER(ctypes.c_float)]
+    lib.mp_owner_claim.restype = ctypes.c_bool
+    lib.mp_owner_claim.argtypes = [ctypes.POINTER(_Owner), ctypes.POINTER(_Mailbox), ctypes.c_uint32, ctypes.c_uint32,
+                                   ctypes.c_uint32]
     rng = np.random.default_rng(7)
     for _ in range(20):
-        box, py = _Mailbox(), MotorApp()
+        box, owner, py = _Mailbox(), _Owner(), MotorApp()
         lib.mp_mailbox_init(ctypes.byref(box))
         tick = int(rng.integers(0, 2**32))
         seq = int(rng.integers(0, 2**16))
@@ -93,9 +107,23 @@ def test_the_simulated_modules_gate_commands_exactly_as_the_c_app(tmp_path):
             seq = (seq + int(rng.choice([1, 1, 1, 0, -1, -3, 2, 40000]))) & 0xFFFF
             counts = tuple(int(c) for c in rng.integers(0, 65536, 4))
             armed = bool(rng.random() < 0.8)
-            c_cmd = _Command(seq, armed, (ctypes.c_uint16 * 4)(*counts))
-            accepted = lib.mp_mailbox_offer(ctypes.byref(box), ctypes.byref(c_cmd), tick, 100)
-            assert accepted == py.offer(wire.MotorCommand(seq, armed, counts), tick)
+            if rng.random() < 0.05:  # a claim by one of three sessions (0: not a session)
+                session = int(rng.integers(0, 3))
+                assert lib.mp_owner_claim(ctypes.byref(owner), ctypes.byref(box), session, tick, 100) == \
+                    py.claim(session, tick)
+                assert (owner.session, owner.token, box.has_command) == (py.owner_session, py.owner_token,
+                                                                        py.latest is not None)
+            token = int(rng.choice([owner.token, owner.token, 0, 7]))
+            c_cmd = _Command(seq, armed, token, (ctypes.c_uint16 * 4)(*counts))
+            cmd = wire.MotorCommand(seq, armed, counts, token)
+            # the app's handlePacket: the owner's command is offered, any other counted as dropped
+            if py.accepts(cmd):
+                accepted = lib.mp_mailbox_offer(ctypes.byref(box), ctypes.byref(c_cmd), tick, 100)
+                assert accepted == py.offer(cmd, tick)
+            else:
+                assert owner.token == 0 or token != owner.token
+                lib.mp_mailbox_drop(ctypes.byref(box))
+                py.drop()
             assert (box.received, box.dropped) == (py.received, py.dropped)
             for later in (0, 99, 100):
                 locked, can_fly = bool(rng.random() < 0.1), bool(rng.random() < 0.9)

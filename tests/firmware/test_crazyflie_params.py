@@ -55,10 +55,10 @@ def test_read_only_parameters_are_never_written():
     peer, th = start_peer(SimulatedCrazyflies, 19724, 7604)
     try:
         uri = "udp://127.0.0.1:19724"
-        checks = check_crazyflie(uri, 0, {"motorApp.version": 3}, apply=True)
-        assert issues(checks) == ["module 0 (udp://127.0.0.1:19724): motorApp.version is 2, must be 3 (read-only: "
+        checks = check_crazyflie(uri, 0, {"motorApp.version": 4}, apply=True)
+        assert issues(checks) == ["module 0 (udp://127.0.0.1:19724): motorApp.version is 3, must be 4 (read-only: "
                                   "flash the firmware that has it right)"]
-        assert not checks[0].written and peer.firmware(0).services.value("motorApp.version") == 2
+        assert not checks[0].written and peer.firmware(0).services.value("motorApp.version") == 3
     finally:
         stop_peer(peer, th)
 
@@ -68,7 +68,7 @@ def test_stock_firmware_is_named():
     try:
         checks = check_crazyflie("udp://127.0.0.1:19726", 0, WANTED)
         assert issues(checks) == [
-            "module 0 (udp://127.0.0.1:19726): motorApp.version is not in the module's parameters, must be 2",
+            "module 0 (udp://127.0.0.1:19726): motorApp.version is not in the module's parameters, must be 3",
             "module 0 (udp://127.0.0.1:19726): supervisor.tmblChckEn is 1, must be 0",
             "module 0 (udp://127.0.0.1:19726): stabilizer.controller is 1, must be 6"]
     finally:

@@ -10,7 +10,7 @@ from tests.peers import ROOT
 
 def test_shipped_parameter_files_load():
     assert load_param_file(ROOT / "firmware_params/crazyflie.toml") == {
-        "motorApp.version": 2.0, "supervisor.tmblChckEn": 0.0, "stabilizer.controller": 6.0,
+        "motorApp.version": 3.0, "supervisor.tmblChckEn": 0.0, "stabilizer.controller": 6.0,
         "motorPowerSet.enable": 0.0}
     assert load_param_file(ROOT / "firmware_params/px4/module_params.toml") == {
         "COM_OF_LOSS_T": 0.1, "PWM_MAIN_DISARM": 900.0}

@@ -18,6 +18,7 @@ from groundstation.backends.crazyflie import CrazyflieBackend, CrazyflieSettings
 from groundstation.errors import ArmingError
 from groundstation.firmware.crazyflie_params import check_crazyflie
 from groundstation.firmware.params import issues, load_param_file
+from groundstation.runtime.placement import placement_issues, predicted_up
 from sim.crazyflie_peer import SimulatedCrazyflies
 from sim.firmware_peer import FIRMWARE_PHYSICS_HZ, FirmwareCrazyflies
 from sim.module_peer import PeerConfig
@@ -161,6 +162,42 @@ def test_a_module_mounted_beyond_60_degrees_flies_only_once_tumble_detection_is_
         with m.backend() as be:
             armed(be)
             be.disarm()
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_one_ground_station_owns_the_modules_and_each_names_itself(kind, tmp_path, monkeypatch):
+    """Motor app contract 3: the claim's answer names each module (distinct unique ids, gravity where its mount
+    puts it); a second ground station (another host: its own link locks) is refused while the first flies, and
+    its commands never reach the motors; two links to one module are refused."""
+    asm = toy("bolt")
+    u = np.full(8, 0.3 * asm.params.u_max)  # below hover: on the ground
+    with modules(kind, "bolt", asm, 19620, 7622, tmp_path) as m, m.backend() as first:
+        armed(first)
+        ids = first.module_ids()
+        assert None not in ids and len(set(ids)) == 2
+        up = predicted_up(asm.module_rotations, m.peer.sim.true_state().rotation)
+        assert not placement_issues(first.module_gravity(), asm.module_rotations,
+                                    m.peer.sim.true_state().rotation, ["m0", "m1"])
+        assert max(np.degrees(np.arccos(np.clip(np.sum(first.module_gravity() * up, axis=1), -1, 1)))) < 3.0
+        flying = threading.Thread(target=hold, args=(first, u, 2.5), daemon=True)
+        flying.start()
+        monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "other-host"))
+        with m.backend() as second:
+            issues = second.preflight().issues
+            assert issues == tuple(f"module {i} (udp://127.0.0.1:{19620 + i}) flies for another ground station "
+                                   f"(session {first.session:08x}): one flight owns a module set" for i in range(2))
+            second.send(np.zeros(8))  # never claimed: nothing goes out
+        flying.join()
+        tel = first.telemetry()
+        assert tel.module_faults == ("", "") and np.allclose(tel.motors, u, rtol=1e-3)
+        first.disarm()
+    with modules(kind, "bolt", asm, 19624, 7624, tmp_path / "b") as m:
+        twice = CrazyflieBackend(["udp://127.0.0.1:19624"] * 2, asm.params, asm.module_rotations,
+                                 CrazyflieSettings(**UNTIMED_LINK))
+        with twice:
+            issues = twice.preflight().issues
+        assert any(i.startswith("module 0 (udp://127.0.0.1:19624) and module 1 (udp://127.0.0.1:19624) are one "
+                                "module (unique id ") for i in issues), issues
 
 
 @pytest.mark.parametrize("kind", KINDS)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from groundstation.errors import UsageError
+from groundstation.mocap.auth import MocapKey, load_key_file
 from groundstation.mocap.bridge import Y_UP_TO_Z_UP, run_bridge
 from groundstation.mocap.zenoh_link import PoseSubscriber, open_session
 
@@ -50,3 +51,27 @@ def test_bad_arguments():
         run_bridge("kinect", "", ["a"], "tcp/127.0.0.1:7486")
     with pytest.raises(UsageError, match="at least one rigid body"):
         run_bridge("mock", "", [], "tcp/127.0.0.1:7486")
+
+
+def test_the_bridge_cli_authenticates_with_the_key_file(tmp_path, cli):
+    """``mocap-key`` then ``mocap-bridge --key-file``: a subscriber with the key takes every pose, one with
+    another key takes none (counted)."""
+    code, out, err = cli("mocap-key", str(tmp_path / "lab.key"))
+    assert code == 0 and "mode 600" in out
+    key = load_key_file(tmp_path / "lab.key")
+    endpoint = "tcp/127.0.0.1:7488"
+    done = threading.Thread(target=cli, args=("mocap-bridge", "--system", "mock", "--bodies", "assembly",
+                                              "--endpoint", endpoint, "--duration", "1.5", "--key-file",
+                                              str(tmp_path / "lab.key")))
+    done.start()
+    time.sleep(0.5)
+    gs = open_session(connect=[endpoint])
+    good = PoseSubscriber(gs, "mocap/assembly/pose", mac_key=key)
+    bad = PoseSubscriber(gs, "mocap/assembly/pose", mac_key=MocapKey(bytes(32)))
+    assert good.wait_for(5, timeout=5.0)
+    done.join(timeout=10)
+    bad.poll()
+    for s in (good, bad):
+        s.close()
+    gs.close()
+    assert good.unauthenticated == 0 and bad.accepted == 0 and bad.unauthenticated >= 5

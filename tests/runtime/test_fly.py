@@ -8,6 +8,7 @@ import pytest
 from mcap.reader import make_reader
 
 from groundstation.errors import BackendError, ConfigError, PreflightError, SessionError
+from groundstation.mocap.auth import write_key_file
 from groundstation.runtime.flight import Requests
 from groundstation.runtime.flight_config import load_flight_config
 from groundstation.runtime.fly import Faults, fly
@@ -32,6 +33,15 @@ def read_log(path):
     return counts, meta, logs, motors
 
 
+def quick_phases(text: str) -> str:
+    """A flight config whose take-off and landing take 2 s instead of the shipped 3 s (unless it sets them): the
+    suite flies ~100 times, and what the tests look at happens in tracking or at its end."""
+    for key in ("takeoff_s", "landing_s"):
+        if key not in text:
+            text = text.replace("duration = 16.0\n", f"duration = 16.0\n{key} = 2.0\n")
+    return text
+
+
 def config_with(tmp_path, **changes) -> Path:
     text = FLIGHT.read_text().replace('assembly = "../assemblies/toy_v2.json"',
                                       f'assembly = "{ROOT / "configs/assemblies/toy_v2.json"}"')
@@ -39,6 +49,7 @@ def config_with(tmp_path, **changes) -> Path:
     text = text.replace('endpoint = "tcp/127.0.0.1:7448"', f'endpoint = "{endpoint}"')
     for old, new in changes.items():
         text = text.replace(old, new)
+    text = quick_phases(text)
     if 'kind = "sim"' not in text:  # made a hardware config: the sim section's keys are not its keys
         text = text.replace("physics_hz = 240\n", "").replace("motor_time_constant = 0.02\n", "")
     p = tmp_path / "flight.toml"
@@ -135,8 +146,10 @@ def test_bad_inputs_never_arm(tmp_path):
         fly(config_with(tmp_path, **{'kind = "sim"': no_dongle}), log_path=tmp_path / "y.mcap")
     with pytest.raises(ConfigError, match="log_dir"):
         fly(config_with(tmp_path, **{'log_dir = "../../out/flights"': 'log_dir = "/proc/nope"'}))
+    key = write_key_file(tmp_path / "mocap.key")  # off loopback the mocap must be authenticated
     with pytest.raises(SessionError):
-        fly(config_with(tmp_path, endpoint="tcp/256.0.0.1:1"), log_path=tmp_path / "x.mcap")
+        keyed = {"latency_s = 0.005": f'latency_s = 0.005\nkey_file = "{key}"'}
+        fly(config_with(tmp_path, endpoint="tcp/256.0.0.1:1", **keyed), log_path=tmp_path / "x.mcap")
 
 
 SITL = {"crazyflie": ("toy_figure8_crazyflie_sitl.toml", "crtp", 19850, 19880),
@@ -156,7 +169,7 @@ def sitl_config(tmp_path, kind: str, port: int, mocap: str) -> Path:
     # The shipped 0.1 s link timeout also stops a flight whose simulated modules were starved that long on a loaded
     # machine (seen under a CPU hog: "backend link lost" at 0.25 s and 2.3 s, before anything was injected): a
     # correct stop, but not what these tests are about. 0.5 s still catches a killed peer within the flight.
-    text = text.replace("link_timeout_s = 0.1", "link_timeout_s = 0.5")
+    text = quick_phases(text.replace("link_timeout_s = 0.1", "link_timeout_s = 0.5"))
     cfg = tmp_path / f"{kind}.toml"
     cfg.write_text(text)
     return cfg

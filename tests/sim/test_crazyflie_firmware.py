@@ -120,8 +120,10 @@ def test_states_answer_commands_and_report_the_motor_ratios():
     for k in range(1, 3000):
         fw.step(k * 1e-3)
         assert not fw.state_due()
+    ident = wire.Identity.unpack(fw.handle(bytes([wire.APP_HEADER]) + wire.Claim(77).pack(), 3.0)[0][1:])
+    assert (ident.session, ident.token) == (77, 1) and not fw.state_due()  # a claim is answered by the identity
     for seq in (1, 2, 3):
-        fw.handle(bytes([wire.APP_HEADER]) + wire.MotorCommand(seq, True, wire.to_counts([0.5] * 4)).pack(), 3.0)
+        fw.handle(bytes([wire.APP_HEADER]) + wire.MotorCommand(seq, True, wire.to_counts([0.5] * 4), 1).pack(), 3.0)
     assert fw.state_due()
     st = wire.ModuleState.unpack(fw.state_packet(3.0, np.zeros(3))[1:])
     assert not fw.state_due()

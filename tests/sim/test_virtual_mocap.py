@@ -13,10 +13,10 @@ def test_rate_latency_and_delivery(threaded):
     a = open_session(listen=["tcp/127.0.0.1:7479"])
     b = open_session(connect=["tcp/127.0.0.1:7479"])
     try:
-        sub = PoseSubscriber(b, "mocap/v/pose")
+        now = [0.0]
+        sub = PoseSubscriber(b, "mocap/v/pose", clock=lambda: now[0])  # stamps and arrivals on one clock
         pub = PosePublisher(a, "mocap/v/pose")
         time.sleep(0.3)
-        now = [0.0]
         vm = VirtualMocap(pub, rate_hz=100.0, latency=0.02, threaded=threaded, clock=lambda: now[0])
         for k in range(1, 241):  # 1 s of physics at 240 Hz, moving along x at 1 m/s, in real time
             now[0] = t = k / 240

@@ -12,6 +12,13 @@ static void put_u16(uint8_t *p, uint16_t v) {
   p[1] = (uint8_t)(v >> 8);
 }
 
+static void put_u32(uint8_t *p, uint32_t v) {
+  put_u16(p, (uint16_t)(v & 0xFFFFu));
+  put_u16(p + 2, (uint16_t)(v >> 16));
+}
+
+static uint32_t get_u32(const uint8_t *p) { return (uint32_t)get_u16(p) | ((uint32_t)get_u16(p + 2) << 16); }
+
 static void put_f32(uint8_t *p, float v) {
   uint32_t bits;
   memcpy(&bits, &v, sizeof bits); /* IEEE 754 single on both the M4 and the host */
@@ -31,7 +38,7 @@ static mp_status_t decode_broadcast(const uint8_t *buf, size_t len, uint8_t slot
     return MP_BAD_LENGTH;
   }
   const uint8_t first = buf[4];
-  const uint8_t count = buf[5];
+  const uint8_t count = (uint8_t)((buf[1] & MP_BROADCAST_COUNT_MASK) >> MP_BROADCAST_COUNT_SHIFT);
   if (count == 0u || count > MP_BROADCAST_MAX_MODULES ||
       len != MP_BROADCAST_HEADER_SIZE + (size_t)count * MP_BROADCAST_MODULE_SIZE) {
     return MP_BAD_LENGTH;
@@ -47,6 +54,7 @@ static mp_status_t decode_broadcast(const uint8_t *buf, size_t len, uint8_t slot
   }
   out->sequence = get_u16(buf + 2);
   out->armed = (buf[1] & MP_FLAG_ARMED) != 0u;
+  out->token = buf[5];
   for (unsigned q = 0; q < 4u; q++) {
     out->counts[q] = widen12((uint32_t)((packed >> (12u * q)) & 0xFFFu));
   }
@@ -67,11 +75,35 @@ mp_status_t mp_decode_command(const uint8_t *buf, size_t len, uint8_t slot, mp_c
     return MP_BAD_LENGTH;
   }
   out->armed = (buf[1] & MP_FLAG_ARMED) != 0u;
-  out->sequence = get_u16(buf + 2);
+  out->token = buf[2];
+  out->sequence = get_u16(buf + 3);
   for (unsigned q = 0; q < 4u; q++) {
-    out->counts[q] = get_u16(buf + 4 + 2u * q);
+    out->counts[q] = get_u16(buf + 5 + 2u * q);
   }
   return MP_OK;
+}
+
+bool mp_decode_claim(const uint8_t *buf, size_t len, uint32_t *session) {
+  if (len != MP_CLAIM_SIZE || buf[0] != MP_KIND_CLAIM) {
+    return false;
+  }
+  *session = get_u32(buf + 1);
+  return *session != 0u;
+}
+
+size_t mp_encode_identity(const mp_identity_t *identity, uint8_t *buf, size_t cap) {
+  if (cap < MP_IDENTITY_SIZE) {
+    return 0;
+  }
+  buf[0] = MP_KIND_IDENTITY;
+  buf[1] = identity->flags;
+  buf[2] = identity->token;
+  put_u32(buf + 3, identity->session);
+  for (unsigned k = 0; k < 3u; k++) {
+    put_u32(buf + 7 + 4u * k, identity->uid[k]);
+    put_u16(buf + 19 + 2u * k, (uint16_t)identity->acc_mg[k]);
+  }
+  return MP_IDENTITY_SIZE;
 }
 
 size_t mp_encode_state(const mp_state_t *state, uint8_t *buf, size_t cap) {
@@ -109,6 +141,24 @@ bool mp_mailbox_offer(mp_mailbox_t *box, const mp_command_t *cmd, uint32_t now, 
 }
 
 void mp_mailbox_drop(mp_mailbox_t *box) { box->dropped++; }
+
+bool mp_owner_claim(mp_owner_t *owner, mp_mailbox_t *box, uint32_t session, uint32_t now, uint32_t timeout) {
+  if (session == 0u) {
+    return false;
+  }
+  if (owner->token != 0u && owner->session == session) {
+    return true;
+  }
+  const bool flying_for_owner = owner->token != 0u && box->has_command && box->latest.armed &&
+                                mp_ticks_since(now, box->accepted_tick) < timeout;
+  if (flying_for_owner) {
+    return false;
+  }
+  owner->session = session;
+  owner->token = (uint8_t)(owner->token % 255u + 1u); /* 1..255: never 0, never the previous owner's */
+  box->has_command = false;                           /* the old owner's command is not the new owner's */
+  return true;
+}
 
 mp_gate_t mp_gate_forces(const mp_mailbox_t *box, uint32_t now, uint32_t timeout, bool locked, bool can_fly,
                          float forces[4]) {

@@ -17,18 +17,28 @@
 #include <stdint.h>
 
 /* Version of this contract, served read-only as the parameter motorApp.version. */
-#define MP_PROTOCOL_VERSION 2u
+#define MP_PROTOCOL_VERSION 3u
 /* 2: forces only while the supervisor can fly (flag MP_STATE_CAN_FLY); a state reports the motor ratios that
  * reach the motors; one state per batch of received commands instead of an unprompted 100 Hz stream; flags
- * can fly and flying. */
+ * can fly and flying.
+ * 3: one owner at a time. A ground station claims the module with its session id and learns the owner's token,
+ * which every command then carries; commands with another token are dropped. A claim is refused while another
+ * session's armed commands are fresh. The answer to a claim is the identity report: the owner, the MCU's unique
+ * id and the accelerometer (the direction of gravity in the module's frame, at rest). */
 
 /* First byte of every app-channel payload. */
 #define MP_KIND_COMMAND 0x01u   /* ground -> one module (unicast) */
 #define MP_KIND_BROADCAST 0x02u /* ground -> up to 4 modules in one no-ack packet */
+#define MP_KIND_CLAIM 0x03u     /* ground -> one module: become its owner */
 #define MP_KIND_STATE 0x81u     /* module -> ground */
+#define MP_KIND_IDENTITY 0x82u  /* module -> ground: the answer to a claim */
 
-#define MP_COMMAND_SIZE 12u
+#define MP_COMMAND_SIZE 13u
+#define MP_CLAIM_SIZE 5u
+#define MP_IDENTITY_SIZE 25u
 #define MP_BROADCAST_HEADER_SIZE 6u
+#define MP_BROADCAST_COUNT_SHIFT 1u /* the broadcast's module count sits in bits 1-3 of its flags */
+#define MP_BROADCAST_COUNT_MASK 0x0Eu
 #define MP_BROADCAST_MODULE_SIZE 6u /* four 12-bit commands */
 #define MP_BROADCAST_MAX_MODULES 4u
 #define MP_STATE_SIZE 30u
@@ -52,6 +62,7 @@
 typedef struct {
   uint16_t sequence; /* sender's counter (wraps) */
   bool armed;
+  uint8_t token;      /* the owner's token the sender was given (mp_owner_t) */
   uint16_t counts[4]; /* 0..65535 */
 } mp_command_t;
 
@@ -73,8 +84,29 @@ typedef struct {
   uint16_t dropped;   /* commands not applied: older than the newest, malformed, or lost to a full queue (wraps) */
 } mp_state_t;
 
+/* Who owns the module: the session that claimed it last, and the token its commands carry (0: nobody). */
+typedef struct {
+  uint32_t session;
+  uint8_t token; /* 1..255, a new one at every change of owner */
+} mp_owner_t;
+
+/* What the module answers to a claim. */
+typedef struct {
+  uint8_t flags;       /* MP_STATE_* */
+  uint8_t token;       /* the owner's token (the claimant's if the claim succeeded) */
+  uint32_t session;    /* the owner's session */
+  uint32_t uid[3];     /* the MCU's unique id (parameters cpu.id0..id2) */
+  int16_t acc_mg[3];   /* accelerometer, milli-g, module frame (at rest: gravity's direction, up) */
+} mp_identity_t;
+
 /* Decode an app-channel payload addressed to the module in broadcast slot `slot`. */
 mp_status_t mp_decode_command(const uint8_t *buf, size_t len, uint8_t slot, mp_command_t *out);
+
+/* Decode a claim: true and the session id (never 0) if `buf` is one. */
+bool mp_decode_claim(const uint8_t *buf, size_t len, uint32_t *session);
+
+/* Encode an identity report into buf (at least MP_IDENTITY_SIZE bytes); returns the size, 0 if cap is too small. */
+size_t mp_encode_identity(const mp_identity_t *identity, uint8_t *buf, size_t cap);
 
 /* Encode a state report into buf (at least MP_STATE_SIZE bytes); returns the size, 0 if cap is too small. */
 size_t mp_encode_state(const mp_state_t *state, uint8_t *buf, size_t cap);
@@ -105,8 +137,21 @@ void mp_mailbox_init(mp_mailbox_t *box);
  */
 bool mp_mailbox_offer(mp_mailbox_t *box, const mp_command_t *cmd, uint32_t now, uint32_t timeout);
 
-/* Count a packet that never became a command (malformed, or lost to a full receive queue). */
+/* Count a packet that never became a command (malformed, another owner's, or lost to a full receive queue). */
 void mp_mailbox_drop(mp_mailbox_t *box);
+
+/*
+ * A claim by `session` at tick `now`. The same session keeps its token (a repeated claim whose answer was lost).
+ * Another session is refused while the owner's newest command is armed and younger than `timeout` (the module
+ * is flying for it); otherwise it becomes the owner with a new token and the mailbox forgets the old owner's
+ * command (its counters go on). Returns true if `session` owns the module afterwards.
+ */
+bool mp_owner_claim(mp_owner_t *owner, mp_mailbox_t *box, uint32_t session, uint32_t now, uint32_t timeout);
+
+/* A command is the owner's: it carries the owner's token (never so before the first claim). */
+static inline bool mp_owner_accepts(const mp_owner_t *owner, const mp_command_t *cmd) {
+  return owner->token != 0u && cmd->token == owner->token;
+}
 
 typedef enum {
   MP_GATE_RUN = 0,     /* forces are the newest command's */

@@ -10,6 +10,7 @@
 #include "app_channel.h"
 #include "commander.h"
 #include "motors.h"
+#include "param.h"
 #include "pm.h"
 #include "supervisor.h"
 #include "task.h"
@@ -43,6 +44,18 @@ const fake_packet_t *fake_last_tx(void) {
 }
 
 TickType_t xTaskGetTickCount(void) { return fake.tick; }
+
+paramVarId_t paramGetVarId(const char *group, const char *name) {
+  paramVarId_t id = {0xffffu, 0u};
+  if (!fake.no_cpu_params && strcmp(group, "cpu") == 0 && strncmp(name, "id", 2) == 0 && name[2] >= '0' &&
+      name[2] <= '2' && name[3] == '\0') {
+    id.id = (uint16_t)(name[2] - '0');
+    id.index = id.id;
+  }
+  return id;
+}
+
+unsigned int paramGetUint(paramVarId_t varid) { return varid.id < 3u ? fake.uid[varid.id] : 0u; }
 
 void fakeEnterCritical(void) {
   fake.critical_depth++;

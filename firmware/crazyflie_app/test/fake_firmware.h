@@ -45,6 +45,9 @@ typedef struct {
   bool flying;
   uint16_t ratios[4]; /* what motorsGetRatio returns: the power distribution's output */
   float battery_v;
+  /* parameters */
+  uint32_t uid[3];     /* cpu.id0..id2 */
+  bool no_cpu_params;  /* a build without the cpu group: lookups fail */
 } fake_firmware_t;
 
 extern fake_firmware_t fake;

@@ -4,9 +4,10 @@
  *   vector_check packet_vectors.txt
  *
  * The vector file is written by the Python encoder (groundstation/backends/crtp_wire.py, kept equal to it by
- * tests/backends/test_crtp_wire.py). For each `command` line this decodes the hex as the module would and checks
- * the status and fields; for each `state` line it encodes the fields as the module would and checks the hex, and
- * prints its own encoding (`state-c hex=...`) so the Python test can decode it back. Exit status 1 on mismatch.
+ * tests/backends/test_crtp_wire.py). For each `command` and `claim` line this decodes the hex as the module would
+ * and checks the status and fields; for each `state` and `identity` line it encodes the fields as the module
+ * would and checks the hex, and prints its own encoding (`state-c hex=...`, `identity-c hex=...`) so the Python
+ * test can decode it back. Exit status 1 on mismatch.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -97,14 +98,23 @@ static void check_command(const char *line) {
   }
   double counts[4];
   list(line, "counts", counts, 4);
-  if (cmd.sequence != number(line, "seq") || cmd.armed != (number(line, "armed") != 0)) {
-    fail("sequence or armed flag differs");
+  if (cmd.sequence != number(line, "seq") || cmd.armed != (number(line, "armed") != 0) ||
+      cmd.token != number(line, "token")) {
+    fail("sequence, armed flag or token differs");
   }
   for (int q = 0; q < 4; q++) {
     if (cmd.counts[q] != (uint16_t)counts[q]) {
       fail("counts differ");
     }
   }
+}
+
+static void print_hex(const char *kind, const uint8_t *bytes, size_t n) {
+  printf("%s-c line=%d hex=", kind, line_no);
+  for (size_t i = 0; i < n; i++) {
+    printf("%02x", bytes[i]);
+  }
+  printf("\n");
 }
 
 static void check_state(const char *line) {
@@ -130,11 +140,40 @@ static void check_state(const char *line) {
   if (n != m || memcmp(mine, theirs, n) != 0) {
     fail("state encoding differs");
   }
-  printf("state-c line=%d hex=", line_no);
-  for (size_t i = 0; i < n; i++) {
-    printf("%02x", mine[i]);
+  print_hex("state", mine, n);
+}
+
+static void check_claim(const char *line) {
+  uint8_t buf[64];
+  const size_t n = hex_bytes(line, buf, sizeof buf);
+  uint32_t session = 0;
+  const bool valid = mp_decode_claim(buf, n, &session);
+  if (valid != (number(line, "valid") != 0) || (valid && session != (uint32_t)strtoul(field(line, "session"),
+                                                                                     NULL, 0))) {
+    fail("claim differs");
   }
-  printf("\n");
+}
+
+static void check_identity(const char *line) {
+  mp_identity_t id;
+  double uid[3], acc[3];
+  memset(&id, 0, sizeof id);
+  list(line, "uid", uid, 3);
+  list(line, "acc_mg", acc, 3);
+  id.flags = (uint8_t)number(line, "flags");
+  id.token = (uint8_t)number(line, "token");
+  id.session = (uint32_t)strtoul(field(line, "session"), NULL, 0);
+  for (int k = 0; k < 3; k++) {
+    id.uid[k] = (uint32_t)uid[k];
+    id.acc_mg[k] = (int16_t)acc[k];
+  }
+  uint8_t mine[MP_IDENTITY_SIZE], theirs[64];
+  const size_t n = mp_encode_identity(&id, mine, sizeof mine);
+  const size_t m = hex_bytes(line, theirs, sizeof theirs);
+  if (n != m || memcmp(mine, theirs, n) != 0) {
+    fail("identity encoding differs");
+  }
+  print_hex("identity", mine, n);
 }
 
 int main(int argc, char **argv) {
@@ -156,6 +195,12 @@ int main(int argc, char **argv) {
       commands++;
     } else if (strncmp(line, "state ", 6) == 0) {
       check_state(line);
+      states++;
+    } else if (strncmp(line, "claim ", 6) == 0) {
+      check_claim(line);
+      commands++;
+    } else if (strncmp(line, "identity ", 9) == 0) {
+      check_identity(line);
       states++;
     }
   }

@@ -17,6 +17,7 @@ typedef struct {
   uint16_t sensorPort;
   struct sockaddr_in motorAddr;
   const char *paramsFile;
+  uint32_t uid[3]; /* the MCU's unique id (--uid, 24 hex digits): served as the parameters cpu.id0..id2 */
 } sitlOptions_t;
 
 extern sitlOptions_t sitlOptions;

@@ -30,7 +30,7 @@ extern char _sdata[], _edata[], _sidata[];
 
 static void usage(const char *argv0) {
   fprintf(stderr,
-          "usage: %s --crtp-port P --sensor-port S --motor-addr HOST:PORT [--params FILE]\n"
+          "usage: %s --crtp-port P --sensor-port S --motor-addr HOST:PORT [--params FILE] [--uid HEX24]\n"
           "  one Crazyflie module (crazyflie-firmware SITL); sockets on 127.0.0.1, see WIRE.md\n",
           argv0);
   exit(2);
@@ -79,6 +79,17 @@ static void parseOptions(int argc, char **argv) {
       haveMotor = true;
     } else if (strcmp(arg, "--params") == 0) {
       sitlOptions.paramsFile = value;
+    } else if (strcmp(arg, "--uid") == 0) {
+      /* cpu.id0 is bytes 0-3 of the 96-bit id, id1 bytes 4-7, id2 bytes 8-11: three groups of 8 hex digits */
+      if (strlen(value) != 24 || strspn(value, "0123456789abcdefABCDEF") != 24) {
+        usage(argv[0]);
+      }
+      for (int k = 0; k < 3; k++) {
+        char group[9];
+        memcpy(group, value + 8 * k, 8);
+        group[8] = '\0';
+        sitlOptions.uid[k] = (uint32_t)strtoul(group, NULL, 16);
+      }
     } else {
       usage(argv[0]);
     }

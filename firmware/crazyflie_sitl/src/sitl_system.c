@@ -138,6 +138,13 @@ void systemRequestNRFVersion(void) {}
 void systemSendRadioReady(void) {}
 void systemSyslinkReceive(void) {}
 
+/* The firmware's system.c serves the MCU's unique id from its ID registers; ours comes from --uid. */
+PARAM_GROUP_START(cpu)
+PARAM_ADD_CORE(PARAM_UINT32 | PARAM_RONLY, id0, &sitlOptions.uid[0])
+PARAM_ADD_CORE(PARAM_UINT32 | PARAM_RONLY, id1, &sitlOptions.uid[1])
+PARAM_ADD_CORE(PARAM_UINT32 | PARAM_RONLY, id2, &sitlOptions.uid[2])
+PARAM_GROUP_STOP(cpu)
+
 PARAM_GROUP_START(system)
 /**
  * @brief All tests passed when booting (SITL: the tests of the modules the SITL starts)

@@ -1,0 +1,165 @@
+"""Fault table: input that is valid by type but absurd (a take-off of 1e7 s, gains the loop rate cannot realise,
+a mocap latency the stale bound cannot see, nan and inf in an option, a binary where a text file belongs).
+
+Each row is one line on stderr naming the file and the key (or the option, or the file), exit 2, before anything
+is opened: no log file is made, nothing armed.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.faults.table import Fault, fault, rows
+from tests.peers import ROOT
+from tests.runtime.test_fly import config_with
+
+TOY_ASSEMBLY = str(ROOT / "configs/assemblies/toy_v2.json")
+TOY_TASK = str(ROOT / "configs/tasks/toy_push_y.toml")
+CRAZYFLIE = 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:19850", "udp://127.0.0.1:19851"]'
+
+
+def _refused(cli, args: tuple, *fragments: str, log: Path | None = None) -> None:
+    code, out, err = cli(*args)
+    assert code == 2 and err.count("\n") == 1 and all(f in err for f in fragments), err
+    assert "Traceback" not in err and (log is None or not log.exists())  # nothing opened, never armed
+
+
+def _fly_refused(cli, tmp_path, config: Path, *fragments: str) -> None:
+    log = tmp_path / "x.mcap"
+    _refused(cli, ("fly", str(config), "--log", str(log)), str(config), *fragments, log=log)
+
+
+# -- flight config keys beyond their physical bound ----------------------------------------------------------------
+CONFIG_KEYS = [  # id, the flight config's change (as the row's description), the change, what stderr names
+    ("takeoff_1e7_s", "takeoff_s = 1e7", {"roll_deg = 0.0": "roll_deg = 0.0\ntakeoff_s = 1e7"}, "trajectory.takeoff_s"),
+    ("landing_1e7_s", "landing_s = 1e7", {"roll_deg = 0.0": "roll_deg = 0.0\nlanding_s = 1e7"}, "trajectory.landing_s"),
+    ("figure8_period_1e7_s", "period = 1e7", {"period = 8.0": "period = 1e7"}, "trajectory.period"),
+    ("takeoff_inf", "takeoff_s = inf", {"roll_deg = 0.0": "roll_deg = 0.0\ntakeoff_s = inf"},
+     "trajectory.takeoff_s: Input should be a finite number"),
+    ("roll_target_1e9_deg", "roll_deg = 1e9", {"roll_deg = 0.0": "roll_deg = 1e9"}, "trajectory.roll_deg"),
+    ("attitude_gain_40_hz", "attitude_hz = 40 at rate_hz = 250", {"attitude_hz = 4.0": "attitude_hz = 40.0"},
+     "gains.attitude_hz: 40 Hz"),
+    ("attitude_gain_nan", "attitude_hz = nan", {"attitude_hz = 4.0": "attitude_hz = nan"},
+     "gains.attitude_hz: Input should be a finite"),
+    ("attitude_damping_1e-6", "attitude_zeta = 1e-6", {"attitude_zeta = 0.9": "attitude_zeta = 1e-6"},
+     "gains.attitude_hz", "attitude_zeta = 1e-06"),
+    ("loop_rate_60_hz", "rate_hz = 60 with the 4 Hz attitude gains", {"rate_hz = 250": "rate_hz = 60"},
+     "gains.attitude_hz", "60 Hz (rate_hz)"),
+    ("physics_1e9_hz", "backend.physics_hz = 1e9", {"physics_hz = 240": "physics_hz = 1e9"}, "backend.physics_hz"),
+    ("physics_10_hz", "backend.physics_hz = 10", {"physics_hz = 240": "physics_hz = 10"}, "gains.position_hz",
+     "(backend.physics_hz)"),
+    ("motor_lag_10_s", "backend.motor_time_constant = 10", {"motor_time_constant = 0.02": "motor_time_constant = 10"},
+     "backend.motor_time_constant"),
+    ("link_timeout_1e7_s", "kind crazyflie, link_timeout_s = 1e7",
+     {'kind = "sim"': f"{CRAZYFLIE}\nlink_timeout_s = 1e7"}, "backend.link_timeout_s"),
+    ("mocap_latency_beyond_stale", "mocap.latency_s = 0.3 with mocap_timeout_s = 0.25",
+     {"latency_s = 0.005": "latency_s = 0.3"}, "mocap.latency_s", "failsafe.mocap_timeout_s"),
+    ("mocap_noise_1_m", "mocap.position_noise = 1", {"position_noise = 0.0005": "position_noise = 1.0"},
+     "mocap.position_noise"),
+    ("mocap_timeout_1e7_s", "mocap_timeout_s = 1e7", {"mocap_timeout_s = 0.25": "mocap_timeout_s = 1e7"},
+     "failsafe.mocap_timeout_s"),
+    ("stall_bound_1e-6_s", "max_stall_s = 1e-6", {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_stall_s = 1e-6"},
+     "failsafe.max_stall_s"),
+    ("tracking_bound_1e9_m", "max_tracking_error_m = 1e9",
+     {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_tracking_error_m = 1e9"}, "failsafe.max_tracking_error_m"),
+    ("geofence_1e300_m", "geofence_upper = [1e300, 3.5, 3.5]",
+     {"geofence_upper = [3.5, 3.5, 3.5]": "geofence_upper = [1e300, 3.5, 3.5]"}, "failsafe.geofence_upper.0"),
+    ("geofence_nan", "geofence_lower = [nan, -3.5, -0.2]",
+     {"geofence_lower = [-3.5, -3.5, -0.2]": "geofence_lower = [nan, -3.5, -0.2]"}, "failsafe.geofence_lower.0"),
+]
+for _name, _what, _changes, *_fragments in CONFIG_KEYS:
+    def _case(cli, tmp_path, changes=_changes, fragments=_fragments):
+        _fly_refused(cli, tmp_path, config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **changes), *fragments)
+    _case.__name__ = f"f_absurd_{_name}"
+    fault(f"fly with {_what}", f"exit 2 naming {_fragments[0].split(':')[0]}, never armed")(_case)
+
+
+# -- options: nan, inf and values beyond the bounds ------------------------------------------------------------------
+OPTIONS = [  # id, the command line, what stderr says
+    ("simulate_roll_nan", ("simulate", TOY_ASSEMBLY, "--roll", "nan"), "'--roll': 'nan' is not a finite number"),
+    ("simulate_duration_1e7", ("simulate", TOY_ASSEMBLY, "--duration", "1e7"),
+     "--duration: Input should be less than or equal to 3600"),
+    ("simulate_physics_1e9_hz", ("simulate", TOY_ASSEMBLY, "--physics-hz", "1e9"), "--physics-hz: 1e+09 Hz is above"),
+    ("optimize_starts_nan", ("optimize", TOY_TASK, "--topology", "oS", "--starts", "nan"),
+     "'--starts': 'nan' is not a finite number"),
+    ("enumerate_sigma_inf", ("enumerate", "5", "--sample", "3", "--sigma", "inf"),
+     "'--sigma': 'inf' is not a finite number"),
+    ("design_seed_negative", ("design", TOY_TASK, "--sample", "2", "--seed", "-1"),
+     "'--seed': -1 is not in the range"),
+]
+for _name, _args, _fragment in OPTIONS:
+    def _case(cli, tmp_path, args=_args, fragment=_fragment):
+        _refused(cli, args, fragment)
+    _case.__name__ = f"f_absurd_{_name}"
+    _shown = " ".join(Path(a).name if "/" in a else a for a in _args)
+    fault(_shown, f"exit 2, one line naming {_args[-2]}")(_case)
+
+
+# -- files that are not text where text belongs ----------------------------------------------------------------------
+def _mcap(tmp_path) -> Path:
+    """A small, real MCAP file (binary: magic, records with length prefixes)."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "flight.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        writer.add_metadata("config", {"rate_hz": "250"})
+        writer.finish()
+    return path
+
+
+@fault("fly with an MCAP log given as the flight config", "exit 2 naming the file: not a text file")
+def f_absurd_flight_config_is_an_mcap_log(cli, tmp_path):
+    mcap = _mcap(tmp_path)
+    _fly_refused(cli, tmp_path, mcap, "not a text file")
+
+
+@fault("fly /dev/zero", "exit 2 naming /dev/zero at once (one read of 4 MiB)")
+def f_absurd_flight_config_is_dev_zero(cli, tmp_path):
+    _fly_refused(cli, tmp_path, Path("/dev/zero"), "not a text file")
+
+
+@fault("fly with a flight config of 5 MiB", "exit 2 naming the file: larger than 4 MiB")
+def f_absurd_flight_config_of_5_mib(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
+    cfg.write_text(cfg.read_text() + "#" * (5 * 2**20))
+    _fly_refused(cli, tmp_path, cfg, "larger than 4 MiB")
+
+
+@fault("fly with a flight config in Latin-1", "exit 2 naming the file: not UTF-8")
+def f_absurd_flight_config_not_utf8(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
+    cfg.write_bytes(cfg.read_bytes().replace(b'body = "assembly"', b'body = "assembl\xe9"'))
+    _fly_refused(cli, tmp_path, cfg, "not UTF-8 text")
+
+
+@fault("fly with assembly = /dev/zero", "exit 2 naming the config, assembly and /dev/zero")
+def f_absurd_assembly_is_dev_zero(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **{TOY_ASSEMBLY: "/dev/zero"})
+    _fly_refused(cli, tmp_path, cfg, "assembly: /dev/zero: not a text file")
+
+
+@fault("simulate an MCAP log given as the assembly", "exit 2 naming the file: not a text file")
+def f_absurd_simulate_assembly_is_an_mcap_log(cli, tmp_path):
+    mcap = _mcap(tmp_path)
+    _refused(cli, ("simulate", str(mcap)), f"{mcap}: not a text file")
+
+
+@fault("optimize with the Python executable given as the task", "exit 2 naming the file: not a text file")
+def f_absurd_task_is_a_binary(cli, tmp_path):
+    binary = str(Path(sys.executable).resolve())
+    _refused(cli, ("optimize", binary, "--topology", "oS"), f"{binary}: not a text file")
+
+
+@fault("design with /dev/zero as the task", "exit 2 naming /dev/zero at once")
+def f_absurd_task_is_dev_zero(cli, tmp_path):
+    _refused(cli, ("design", "/dev/zero"), "/dev/zero: not a text file")
+
+
+@pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
+def test_fault(row: Fault, cli, tmp_path):
+    row.run(cli, tmp_path)

@@ -1,0 +1,159 @@
+"""Fault-table rows for the flight log on a bad disk: a real flight log (``fly``, simulated) damaged for real (bits
+flipped, cut short, its footer or summary broken) and read back through ``groundstation replay`` and
+``groundstation log recover``; and output files of the commands on a full disk (``/dev/full``, a tiny tmpfs).
+
+What must survive is worked out independently from the undamaged original, chunk by chunk, with the ``mcap``
+package's own reader (:mod:`tests.flightlog.damage`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+
+from tests.disks import full, tiny_disk
+from tests.faults.table import Fault, fault, rows
+from tests.flightlog.damage import Expected, chunks_of, expected, flight_log, flipped, middle_of, spread, total_messages
+
+
+def _warned(err: str, log: str) -> list[str]:
+    """The warning lines of ``err`` about ``log`` (as the command names it); anything else on stderr (a traceback)
+    fails the row."""
+    lines = err.splitlines()
+    assert all(line.startswith(f"groundstation: warning: {log}: ") for line in lines), err
+    return lines
+
+
+def _replayed(cli, log: Path, want: Expected) -> list[str]:
+    """``replay --json``: exit 0, every intact control period analysed, the damage said; its warning lines."""
+    code, out, err = cli("replay", str(log), "--json")
+    assert code == 0, err
+    figures = json.loads(out)
+    assert figures["periods"] == want.periods and not figures["complete"]
+    lines = _warned(err, log.name)
+    assert [f"groundstation: warning: {log.name}: {w}" for w in figures["warnings"]] == lines
+    return lines
+
+
+def _recovered(cli, tmp_path: Path, log: Path, want: Expected) -> dict:
+    """``log recover``: exit 0, a valid finalized copy holding every intact message, never called complete."""
+    out = tmp_path / "recovered.mcap"
+    code, stdout, err = cli("log", "recover", str(log), str(out))
+    assert code == 0, err
+    counts = json.loads(stdout)
+    assert counts["messages"] == want.messages and counts["chunks"] == want.chunks
+    assert not counts["source_was_complete"]
+    assert _warned(err.removesuffix(f"recovered: {out}\n"), str(log))
+    with open(out, "rb") as fh:  # every CRC of the copy checks, through to its footer
+        assert sum(isinstance(r, Message) for r in StreamReader(fh, validate_crcs=True).records) == want.messages
+    return counts
+
+
+@fault("one bit flipped in the middle of a chunk of a flight log",
+       "replay: one line naming the chunk's bytes and the messages it held per channel, every other period "
+       "analysed, exit 0; log recover: every other message in a valid finalized copy, the chunk and its messages "
+       "counted as dropped (CRC), the source not called complete")
+def f_log_one_bit_flipped(cli, tmp_path):
+    log = flight_log()
+    chunk = chunks_of(log)[len(chunks_of(log)) // 2]
+    bad = flipped(log, tmp_path / "bit.mcap", [middle_of(chunk)], mask=0x01)
+    want = expected(log, [middle_of(chunk)])
+    lines = _replayed(cli, bad, want)
+    assert f"bytes {chunk.start}-" in lines[0] and f"{sum(chunk.topics.values())} messages (" in lines[0]
+    dropped = _recovered(cli, tmp_path, bad, want)["dropped"]
+    assert dropped["chunks"] == 1 and dropped["messages"] == sum(chunk.topics.values())
+
+
+@fault("64 bytes flipped, spread evenly over the middle 90 % of a flight log",
+       "replay analyses every period of the intact chunks, exit 0, ten damaged stretches named and a line of "
+       "totals; log recover writes every message of the intact chunks and counts the rest by reason")
+def f_log_64_bytes_flipped(cli, tmp_path):
+    log = flight_log()
+    offsets = spread(log)
+    bad = flipped(log, tmp_path / "spread.mcap", offsets)
+    want = expected(log, offsets)
+    lines = _replayed(cli, bad, want)
+    assert len(lines) == 11 and "not listed" in lines[-1]
+    dropped = _recovered(cli, tmp_path, bad, want)["dropped"]
+    assert dropped["messages"] == total_messages(log) - want.messages
+
+
+@fault("a flight log cut short in the middle of a chunk (no summary, no footer)",
+       "replay and log recover read every chunk before the cut; the cut chunk named as truncated, messages "
+       "unknown; exit 0")
+def f_log_truncated(cli, tmp_path):
+    log = flight_log()
+    cut = middle_of(chunks_of(log)[len(chunks_of(log)) // 3])
+    bad = tmp_path / "cut.mcap"
+    bad.write_bytes(log.read_bytes()[:cut])
+    want = expected(log, cut=cut, summary_intact=False)
+    assert "the file ends inside a record" in _replayed(cli, bad, want)[0]
+    assert _recovered(cli, tmp_path, bad, want)["dropped"]["by_reason"] == {"truncated": {"chunks": 1,
+                                                                                          "messages": None}}
+
+
+def _summary_or_footer(cli, tmp_path, where: str) -> None:
+    log = flight_log()
+    size = log.stat().st_size
+    offset = size - 20 if where == "footer" else (chunks_of(log)[-1].end + size) // 2
+    bad = flipped(log, tmp_path / f"{where}.mcap", [offset])
+    want = expected(log)
+    assert "summary section or footer is damaged" in _replayed(cli, bad, want)[0]
+    assert _recovered(cli, tmp_path, bad, want)["dropped"] == {"chunks": 0, "messages": 0, "by_reason": {
+        "summary": {"chunks": 0, "messages": 0}}}
+
+
+@fault("a byte of a flight log's footer flipped",
+       "every message read from the data section; the summary named as damaged and not used; log recover: "
+       "nothing dropped, the source not called complete")
+def f_log_footer_damaged(cli, tmp_path):
+    _summary_or_footer(cli, tmp_path, "footer")
+
+
+@fault("a byte of a flight log's summary section flipped",
+       "as for the footer: every message read, the summary named as damaged, nothing dropped")
+def f_log_summary_damaged(cli, tmp_path):
+    _summary_or_footer(cli, tmp_path, "summary")
+
+
+@fault("log recover onto a full disk (/dev/full)", "one line naming the output file, exit 2, no traceback")
+def f_log_recover_full_disk(cli, tmp_path):
+    code, out, err = cli("log", "recover", str(flight_log()), str(full(tmp_path / "r.mcap")))
+    assert code == 2 and out == "" and err == f"groundstation: error: {tmp_path / 'r.mcap'}: cannot write: No space " \
+                                              f"left on device\n", err
+
+
+@fault("log recover onto a 64 KiB tmpfs that fills up part way through the copy",
+       "one line naming the output file, exit 2, no traceback")
+def f_log_recover_tiny_disk(cli, tmp_path):
+    with tiny_disk(tmp_path / "disk") as disk:
+        code, out, err = cli("log", "recover", str(flight_log()), str(disk / "r.mcap"))
+    assert code == 2 and out == "" and err.endswith("r.mcap: cannot write: No space left on device\n")
+    assert err.count("\n") == 1, err
+
+
+@fault("replay --csv and --plot onto a full disk (/dev/full)",
+       "one line naming the file, exit 2, no traceback")
+def f_replay_outputs_full_disk(cli, tmp_path):
+    log = flight_log()
+    full(tmp_path / f"{log.stem}_control.csv")
+    code, _, err = cli("replay", str(log), "--csv", str(tmp_path))
+    assert code == 2 and err.count("\n") == 1 and "_control.csv: cannot write: No space left on device" in err, err
+    code, _, err = cli("replay", str(log), "--plot", str(full(tmp_path / "fig9.png")))
+    assert code == 2 and err.count("\n") == 1 and "fig9.png: cannot write: No space left on device" in err, err
+
+
+@fault("enumerate --out onto a full disk (/dev/full)", "one line naming the file, exit 2, no traceback")
+def f_enumerate_out_full_disk(cli, tmp_path):
+    code, _, err = cli("enumerate", "4", "--out", str(full(tmp_path / "c.json")))
+    assert code == 2 and err == f"groundstation: error: {tmp_path / 'c.json'}: cannot write: No space left on " \
+                                f"device\n", err
+
+
+@pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
+def test_fault(row: Fault, cli, tmp_path):
+    row.run(cli, tmp_path)

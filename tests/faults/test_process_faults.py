@@ -1,0 +1,316 @@
+"""Fault table: the process, the operator and the resources of a flight (safety issue 20).
+
+Each row injects its fault for real: a log path that exists or that a running flight writes, signals to a real
+``groundstation fly`` process (SIGTERM before arming, twice in flight, SIGKILL), a crash of the control loop, a log
+writer process that stops (SIGSTOP) or whose filesystem is frozen (fsfreeze), pose stamps that are not times through
+the real writer, gains that degrade the flight. The outcome is defined: one line and exit 2 before anything opens;
+or a log that is finalized (or finished by its writer), replays with the flight's end and its reason, and an exit
+status that says what happened (0 nominal, 1 failsafe or not started, 3 degraded).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from groundstation.flightlog.mcap_log import WRITER_STALL_S
+from groundstation.replay.analysis import NO_END, analyse
+from groundstation.replay.reader import open_log
+from groundstation.runtime.fly import Faults, fly
+from tests.faults.table import Fault, fault, rows
+from tests.peers import ROOT
+from tests.runtime.test_fly import config_with, read_log
+
+AIRBORNE = ("takeoff", "settle", "track", "hold")
+HUNG = "log writer failed: the log writer has taken none of its input for "
+
+
+def _fly_process(cfg: Path, log: Path, *args: str) -> subprocess.Popen:
+    """``groundstation fly`` in a process of its own, as an operator starts it; its output goes to files (its log
+    writer inherits them, and one left hung would hold a pipe open): :func:`_ended` reads them."""
+    paths = [cfg.with_name(f"{log.stem}.{k}") for k in ("out", "err")]  # beside the config: not on a frozen disk
+    with open(paths[0], "w") as out, open(paths[1], "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "groundstation", "fly", str(cfg), "--log", str(log), "--json",
+                                 *args], stdout=out, stderr=err, text=True, cwd=ROOT)
+    proc.output_paths = paths
+    return proc
+
+
+def _ended(proc: subprocess.Popen, timeout: float = 120.0) -> tuple[str, str]:
+    """Wait for a :func:`_fly_process`; its stdout and stderr."""
+    proc.wait(timeout)
+    return tuple(p.read_text() for p in proc.output_paths)
+
+
+def _wait_until(done, proc: subprocess.Popen | None = None, what: str = "", timeout: float = 120.0) -> None:
+    """Poll ``done()`` (a cap for a loaded machine, not a timing assertion); the flight process must not end first."""
+    deadline = time.monotonic() + timeout
+    while not done():
+        assert proc is None or proc.poll() is None, f"ended before {what}"
+        assert time.monotonic() < deadline, f"never {what}"
+        time.sleep(0.05)
+
+
+def _airborne(log: Path) -> bool:
+    """The log being written already has a control period in the air (the writer flushes each second)."""
+    with contextlib.suppress(Exception):  # not there yet, or cut in the middle of a chunk: not yet
+        records = open_log(log).records(topics={"/control"})
+        try:
+            return any(rec.data.get("phase") in AIRBORNE for rec in records)
+        finally:
+            records.close()
+    return False
+
+
+def _writer_of(log: Path) -> int:
+    """The process writing ``log`` (the flight's log writer: the only one holding it open)."""
+    target = str(log.resolve())
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        if int(pid) == os.getpid():
+            continue
+        with contextlib.suppress(OSError):
+            if any(os.readlink(f"/proc/{pid}/fd/{fd}") == target for fd in os.listdir(f"/proc/{pid}/fd")):
+                return int(pid)
+    raise AssertionError(f"no process writes {log}")
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split()[2] == "Z"  # a zombie has ended
+    except OSError:
+        return True
+
+
+def _replayed(cli, log: Path) -> dict:
+    code, out, err = cli("replay", str(log), "--json")
+    assert code == 0, err
+    return json.loads(out)
+
+
+# -- the log file ------------------------------------------------------------------------------------------------------
+@fault("fly --log naming a file that exists", "one line naming --log, exit 2, the file untouched, nothing opened")
+def f_log_path_exists(cli, tmp_path):
+    log = tmp_path / "yesterday.mcap"
+    log.write_bytes(b"yesterday's flight")
+    code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7657")), "--log", str(log))
+    assert code == 2 and err.count("\n") == 1 and "--log" in err and "never overwritten" in err, err
+    assert log.read_bytes() == b"yesterday's flight"
+
+
+@fault("a second fly given the --log of a flight in progress",
+       "the second refused (one line, exit 2); the first flies on (exit 0), its log whole")
+def f_log_path_of_a_running_flight(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7658")
+    log = tmp_path / "first.mcap"
+    first = _fly_process(cfg, log, "--duration", "1")
+    try:
+        _wait_until(log.exists, first, "claimed its log")
+        code, out, err = cli("fly", str(cfg), "--log", str(log))  # the same command, once more
+        assert code == 2 and err.count("\n") == 1 and "never overwritten" in err, err
+        out, err = _ended(first, 300)
+    finally:
+        first.kill()
+    assert first.returncode == 0 and json.loads(out)["phase"] == "done", err
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "done" and r["reason"] == "" and r["periods"] > 250
+
+
+# -- signals -----------------------------------------------------------------------------------------------------------
+@fault("SIGTERM to fly before it arms (during its preflight)",
+       "never armed; the log finalized, its end aborted with the reason naming SIGTERM, replayable; exit 1")
+def f_sigterm_in_preflight(cli, tmp_path):
+    log = tmp_path / "preflight.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7659"), log)
+    try:
+        _wait_until(log.exists, proc, "claimed its log")  # past its input checks: opening, then preflight
+        proc.send_signal(signal.SIGTERM)
+        out, err = _ended(proc)
+    finally:
+        proc.kill()
+    reason = "stopped by the operator in preflight (SIGTERM): never armed"
+    assert proc.returncode == 1 and f"the flight did not start: {reason}" in err, err
+    assert json.loads(out)["phase"] == "aborted" and "Traceback" not in err
+    counts, _, _, _ = read_log(log)  # a seeking reader: the summary section is there (finalized)
+    assert "/control" not in counts and counts["/flight/summary"] == 1
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "aborted" and r["reason"] == reason
+
+
+@fault("SIGTERM twice to fly in flight", "landing at the first, motors off at the second; the end (emergency, "
+                                         "operator stop (SIGTERM)) in the log and in replay; exit 1")
+def f_sigterm_twice_in_flight(cli, tmp_path):
+    log = tmp_path / "twice.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7660"), log, "--duration", "2")
+    try:
+        _wait_until(lambda: _airborne(log), proc, "airborne")
+        proc.send_signal(signal.SIGTERM)
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGTERM)
+        out, err = _ended(proc)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1 and "the flight ended in emergency: operator stop (SIGTERM)" in err, err
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "emergency" and r["reason"] == "operator stop (SIGTERM)"
+    texts = [e["text"] for e in r["events"]]
+    assert any(t.endswith("-> landing: operator land (SIGTERM)") for t in texts), texts
+
+
+@fault("the fly process killed (SIGKILL) in flight",
+       "its writer finishes the file, noting the end is missing; replay: the last phase, the reason that the log "
+       "has no end (never a plain end)")
+def f_sigkill_in_flight(cli, tmp_path):
+    log = tmp_path / "killed.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7661"), log)
+    try:
+        _wait_until(lambda: _airborne(log), proc, "airborne")
+        writer = _writer_of(log)
+        proc.kill()
+        proc.wait(30)
+        _wait_until(lambda: _gone(writer), what="finished by its writer")
+    finally:
+        proc.kill()
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] in AIRBORNE and r["reason"] == NO_END, (r["phase"], r["reason"])
+    assert any(e["text"].startswith("the log ends without the flight's end") for e in r["events"])
+
+
+# -- the loop ----------------------------------------------------------------------------------------------------------
+@fault("an exception in the control loop (a bug in a period hook)",
+       "motors off in that period; the crash, named, is the logged end (replay: emergency); the exception re-raised")
+def f_loop_crash(cli, tmp_path):
+    log = tmp_path / "crash.mcap"
+
+    def bug(t):
+        if t > 4.0:
+            raise ZeroDivisionError("division by zero")
+
+    with pytest.raises(ZeroDivisionError):
+        fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7662"), duration=2.0, log_path=log, on_period=bug)
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "emergency"
+    assert r["reason"] == "the control loop crashed: ZeroDivisionError: division by zero"
+    assert r["timeline"][-1]["phase"] == "emergency"
+
+
+# -- the log writer ---------------------------------------------------------------------------------------------------
+def _hung_writer(cli, tmp_path, log: Path, cfg: Path, hang, resume) -> None:
+    """Fly (a process of its own), hang its log writer in flight with ``hang(pid)``; the flight must see it within
+    the watchdog's bound and land (exit 1). Then ``resume(pid)``: the writer, left alone, finishes the file."""
+    proc = _fly_process(cfg, log, "--duration", "4")
+    writer = None
+    try:
+        _wait_until(lambda: _airborne(log), proc, "airborne")
+        writer = _writer_of(log)
+        hang(writer)
+        out, err = _ended(proc)
+    finally:
+        proc.kill()
+        if writer is not None:
+            resume(writer)
+    summary = json.loads(out)
+    assert proc.returncode == 1 and summary["phase"] == "done" and summary["reason"].startswith(HUNG), err
+    assert f"> {WRITER_STALL_S:g} s: hung" in summary["reason"]
+    assert "the flight landed early: log writer failed" in err
+    _wait_until(lambda: _gone(writer), what="finished by its writer, resumed")
+    r = analyse(log)  # what it had been given, finished: the flight's end never reached it
+    assert r.complete and r.metrics.periods > 0 and r.metrics.reason == NO_END
+
+
+@fault("the log writer process stops (SIGSTOP) in flight",
+       f"seen within {WRITER_STALL_S:g} s (the watchdog's bound), failsafe landing (on_log_failure), exit 1; "
+       "resumed, the writer finishes the file")
+def f_log_writer_stopped(cli, tmp_path):
+    _hung_writer(cli, tmp_path, tmp_path / "stopped.mcap", config_with(tmp_path, endpoint="tcp/127.0.0.1:7663"),
+                 lambda pid: os.kill(pid, signal.SIGSTOP), lambda pid: os.kill(pid, signal.SIGCONT))
+
+
+@contextlib.contextmanager
+def _loop_filesystem(tmp_path):
+    """A 64 MiB ext4 filesystem on a loop device (root, mkfs.ext4, fsfreeze), mounted in ``tmp_path``."""
+    if os.geteuid() != 0 or not all(shutil.which(t) for t in ("mkfs.ext4", "fsfreeze", "mount", "umount")):
+        pytest.skip("freezing a filesystem needs root, mkfs.ext4 and fsfreeze")
+    image, mount = tmp_path / "disk.img", tmp_path / "disk"
+    mount.mkdir()
+    with open(image, "wb") as fh:
+        fh.truncate(64 << 20)
+    made = subprocess.run(["mkfs.ext4", "-q", "-F", str(image)], capture_output=True)
+    mounted = made.returncode == 0 and subprocess.run(["mount", "-o", "loop", str(image), str(mount)],
+                                                      capture_output=True).returncode == 0
+    if not mounted:
+        pytest.skip("no loop device to mount a filesystem on")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["fsfreeze", "-u", str(mount)], capture_output=True)  # never left frozen
+        if subprocess.run(["umount", str(mount)], capture_output=True).returncode != 0:
+            subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+@fault("the log's filesystem frozen (fsfreeze) in flight: the writer blocks in write",
+       f"seen within {WRITER_STALL_S:g} s, failsafe landing, exit 1; thawed, the writer finishes the file "
+       "(skipped without root or loop devices)")
+def f_log_disk_frozen(cli, tmp_path):
+    with _loop_filesystem(tmp_path) as disk:
+        def freeze(pid):
+            assert subprocess.run(["fsfreeze", "-f", str(disk)], capture_output=True).returncode == 0
+
+        def thaw(pid):
+            subprocess.run(["fsfreeze", "-u", str(disk)], capture_output=True)
+
+        log = disk / "frozen.mcap"
+        _hung_writer(cli, tmp_path, log, config_with(tmp_path, endpoint="tcp/127.0.0.1:7664"), freeze, thaw)
+        kept = shutil.copy(log, tmp_path / "kept.mcap")
+    assert analyse(kept).complete
+
+
+@fault("mocap samples logged with stamps that are not times for 1 s in flight (NaN, -1 s, inf, 1.7e12: milliseconds)",
+       "rejected at the writer, counted and named in the log; the flight completes, its log whole (exit 0)")
+def f_bad_pose_stamps(cli, tmp_path):
+    faults = Faults()
+    bad = [float("nan"), -1.0, float("inf"), 1.7e12]
+
+    def stamps(t):
+        faults.pose_stamp = bad[int(t * 10) % len(bad)] if 3.5 < t < 4.5 else None
+
+    log = tmp_path / "stamps.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7665"), duration=2.0, log_path=log, faults=faults,
+              on_period=stamps)
+    assert res.phase == "done" and res.nominal and res.log_error is None, res.reason
+    assert set(res.log_rejected) == {"/mocap/assembly publish time"} and res.log_rejected[
+        "/mocap/assembly publish time"] > 20  # ~100 Hz for 1 s
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "done"
+    texts = [e["text"] for e in r["events"]]
+    assert any(t.startswith("a message on /mocap/assembly is not written: its publish time") for t in texts)
+    assert any(t.startswith("messages not written: /mocap/assembly publish time: ") for t in texts)
+
+
+# -- a flight beyond its bounds ---------------------------------------------------------------------------------------
+@fault("attitude gains cut to 1.8 Hz (4 Hz tuned): the flight lands as planned, its attitude error p95 ~30 deg",
+       "the summary names the bound passed (attitude error p95 > 15 deg), exit 3")
+def f_degraded_attitude_gains(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7666", **{"attitude_hz = 4.0": "attitude_hz = 1.8"})
+    log = tmp_path / "soft.mcap"
+    code, out, err = cli("fly", str(cfg), "--duration", "2", "--log", str(log), "--json")
+    summary = json.loads(out)
+    assert code == 3 and summary["phase"] == "done" and summary["reason"] == "", err
+    assert summary["degraded"][0].startswith("attitude error p95 ") and summary["degraded"][0].endswith("> 15 deg")
+    assert "the flight degraded beyond its bounds: attitude error p95" in err
+    _, _, logs, _ = read_log(log)
+    assert any(b"degraded beyond the flight's bounds" in d for _, d in logs)
+
+
+@pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
+def test_fault(row: Fault, cli, tmp_path):
+    row.run(cli, tmp_path)

@@ -1,0 +1,158 @@
+"""Reading and recovering a real flight log after real damage to its bytes: every intact chunk is read, exactly
+what the undamaged original held in them (worked out chunk by chunk with the ``mcap`` package's own reader), and
+each damaged stretch is named with its bytes, its chunks and the messages lost."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import pytest
+from mcap.reader import make_reader
+from mcap.records import DataEnd, Message
+from mcap.stream_reader import StreamReader
+
+from groundstation.errors import ConfigError, UsageError
+from groundstation.flightlog.mcap_log import recover
+from groundstation.flightlog.salvage import LogScan
+from tests.flightlog.damage import chunks_of, expected, flight_log, flipped, middle_of, spread, total_messages
+
+
+def scan(path) -> tuple[LogScan, Counter]:
+    """The scan after a full pass, and the messages it handed out per channel id."""
+    s = LogScan(path)
+    read = Counter(r.channel_id for r in s.records() if isinstance(r, Message))
+    return s, read
+
+
+def test_an_intact_log_reads_whole_with_its_data_section_crc():
+    log = flight_log()
+    s, read = scan(log)
+    assert s.complete and s.damage == [] and s.warnings() == []
+    assert sum(read.values()) == s.messages == total_messages(log) and s.chunks == len(chunks_of(log))
+    with open(log, "rb") as fh:  # the writer sets the data section's CRC (the mcap writer leaves it 0 by default)
+        data_end = [r for r in StreamReader(fh, validate_crcs=True).records if isinstance(r, DataEnd)]
+    assert data_end[0].data_section_crc != 0
+
+
+def test_one_flipped_bit_costs_its_chunk_only(tmp_path):
+    log = flight_log()
+    chunk = chunks_of(log)[len(chunks_of(log)) // 2]
+    bad = flipped(log, tmp_path / "bit.mcap", [middle_of(chunk)], mask=0x10)
+    s, _ = scan(bad)
+    want = expected(log, [middle_of(chunk)])
+    assert (s.messages, s.chunks) == (want.messages, want.chunks) == (total_messages(log) - sum(chunk.topics.values()),
+                                                                      len(chunks_of(log)) - 1)
+    [d] = s.damage
+    assert d.reason in ("crc", "corrupt") and d.span[0] == chunk.start and d.chunks == 1
+    assert d.lost == dict(chunk.topics)  # from the message index after the chunk
+    assert s.messages_lost == sum(chunk.topics.values()) and not s.complete
+    assert f"bytes {chunk.start}-" in s.warnings()[0] and "/control: " in s.warnings()[0]
+
+
+def test_64_flipped_bytes_spread_over_the_file(tmp_path):
+    log = flight_log()
+    offsets = spread(log)
+    s, _ = scan(flipped(log, tmp_path / "spread.mcap", offsets))
+    want = expected(log, offsets)
+    assert 0 < want.chunks < len(chunks_of(log)) - 30  # many chunks lost, many intact
+    assert (s.messages, s.chunks) == (want.messages, want.chunks)
+    assert s.messages_lost == total_messages(log) - want.messages
+    dropped = s.dropped()
+    assert dropped["chunks"] <= len(chunks_of(log)) - want.chunks and set(dropped["by_reason"]) <= {"crc", "corrupt",
+                                                                                                   "unreadable"}
+    assert len(s.warnings()) == 11 and "not listed" in s.warnings()[-1]  # 10 stretches named, then the totals
+
+
+def test_a_damaged_record_header_is_resynchronised_past(tmp_path):
+    """The opcode of one chunk and the length of another are damaged: their lengths cannot be trusted, the scan
+    finds the next intact chunk by its opcode and CRC."""
+    log = flight_log()
+    chunks = chunks_of(log)
+    offsets = [chunks[40].start, chunks[60].start + 3]
+    s, _ = scan(flipped(log, tmp_path / "headers.mcap", offsets, mask=0x01))
+    want = expected(log, offsets)
+    assert (s.messages, s.chunks) == (want.messages, want.chunks) and want.chunks == len(chunks) - 2
+    assert [d.span[0] for d in s.damage] == [chunks[40].start, chunks[60].start]
+    assert [d.span[1] for d in s.damage] == [chunks[41].start, chunks[61].start]
+    assert s.messages_lost == sum(chunks[40].topics.values()) + sum(chunks[60].topics.values())  # the summary's count
+
+
+def test_a_log_cut_inside_a_chunk_and_one_cut_between_chunks(tmp_path):
+    log = flight_log()
+    chunks = chunks_of(log)
+    cut = middle_of(chunks[100])
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(log.read_bytes()[:cut])
+    s, _ = scan(path)
+    want = expected(log, cut=cut, summary_intact=False)
+    assert (s.messages, s.chunks) == (want.messages, want.chunks) and want.chunks == 100
+    [d] = s.damage
+    assert d.reason == "truncated" and d.span == (chunks[100].start, cut) and d.chunks == 1 and d.lost is None
+    assert s.messages_lost is None and not s.complete
+    path.write_bytes(log.read_bytes()[:chunks[100].start])  # the writer killed between chunks: nothing damaged
+    s, _ = scan(path)
+    assert s.messages == want.messages and s.damage == [] and not s.complete
+
+
+@pytest.mark.parametrize("where", ["footer", "summary"])
+def test_a_damaged_footer_or_summary_loses_nothing(tmp_path, where):
+    log = flight_log()
+    size = log.stat().st_size
+    offset = size - 20 if where == "footer" else (chunks_of(log)[-1].end + size) // 2
+    s, _ = scan(flipped(log, tmp_path / f"{where}.mcap", [offset]))
+    assert s.messages == total_messages(log) and s.chunks == len(chunks_of(log))
+    [d] = s.damage
+    assert d.reason == "summary" and d.span[1] == size and d.messages == 0 and not s.complete
+
+
+def test_the_first_chunk_and_the_summary_damaged(tmp_path):
+    """The channels defined in the first chunk are gone with it and with the summary: their later messages cannot
+    be told apart, and are counted as dropped for want of a channel."""
+    log = flight_log()
+    first = chunks_of(log)[0]
+    offsets = [middle_of(first), log.stat().st_size - 20]
+    s, _ = scan(flipped(log, tmp_path / "first.mcap", offsets))
+    want = expected(log, offsets, summary_intact=False)
+    assert want.orphans > 0 and (s.messages, s.chunks) == (want.messages, want.chunks)
+    assert [d.reason for d in s.damage][-1] == "no channel" and s.damage[-1].messages == want.orphans
+
+
+def test_damage_outside_the_chunks_is_found_by_the_data_section_crc(tmp_path):
+    log = flight_log()
+    at = log.read_bytes().index(b"code_version") + 2  # in the metadata, which no chunk CRC covers
+    s, _ = scan(flipped(log, tmp_path / "meta.mcap", [at], mask=0x01))
+    assert s.messages == total_messages(log)
+    [d] = s.damage
+    assert d.reason == "data crc" and d.messages == 0 and "metadata" in d.describe()
+
+
+def test_recover_writes_every_intact_message_to_a_valid_finalized_file(tmp_path):
+    log = flight_log()
+    offsets = spread(log)
+    out = tmp_path / "recovered.mcap"
+    counts = recover(flipped(log, tmp_path / "spread.mcap", offsets), out)
+    want = expected(log, offsets)
+    assert counts["messages"] == want.messages and counts["chunks"] == want.chunks
+    assert not counts["source_was_complete"] and counts["dropped"]["messages"] == total_messages(log) - want.messages
+    with open(out, "rb") as fh:  # every CRC of the copy checks, and a seeking reader finds its summary
+        assert sum(isinstance(r, Message) for r in StreamReader(fh, validate_crcs=True).records) == want.messages
+    with open(out, "rb") as fh:
+        reader = make_reader(fh)
+        assert reader.get_summary().statistics.message_count == want.messages
+        assert {m.name for m in reader.iter_metadata()} >= {"config", "code_version", "assembly"}
+    again = recover(out, tmp_path / "again.mcap")
+    assert again["source_was_complete"] and again["messages"] == want.messages and again["warnings"] == []
+    assert json.dumps(counts)  # the command prints it
+
+
+def test_recover_refuses_to_overwrite_its_source_and_a_foreign_file_is_named(tmp_path):
+    log = tmp_path / "log.mcap"
+    log.write_bytes(flight_log().read_bytes())
+    with pytest.raises(UsageError, match="is the log to recover"):
+        recover(log, log)
+    assert log.read_bytes() == flight_log().read_bytes()
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a log")
+    with pytest.raises(ConfigError, match="notes.mcap: not an MCAP file"):
+        recover(text, tmp_path / "out.mcap")

@@ -1,0 +1,144 @@
+"""Mocap samples that lie: stamps that are not times or disagree with their arrival, a copied source id, samples
+without the shared key's MAC, captured samples re-sent. Real Zenoh sessions on loopback."""
+
+import struct
+import time
+
+import numpy as np
+import pytest
+import zenoh
+
+from groundstation.mocap.auth import MocapKey
+from groundstation.mocap.codec import PoseSample, encode
+from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, open_session
+
+KEY = "mocap/body/pose"
+
+
+@pytest.fixture
+def sessions():
+    """(publisher's, ground station's, attacker's): the ground station listens and the publisher connects to it;
+    the attacker connects to both (it reads the genuine samples, as anyone on a shared network can)."""
+    gs = open_session(listen=["tcp/127.0.0.1:7486"])
+    a = open_session(listen=["tcp/127.0.0.1:7487"], connect=["tcp/127.0.0.1:7486"])
+    c = open_session(connect=["tcp/127.0.0.1:7486", "tcp/127.0.0.1:7487"])
+    time.sleep(0.3)
+    yield a, gs, c
+    for s in (c, a, gs):
+        s.close()
+
+
+def _genuine(pub: PosePublisher, sub: PoseSubscriber, k0: int, count: int, x0: float = 0.0) -> None:
+    """``count`` samples of a body hovering at ``x0``, 100 Hz, stamped with the wall clock, each polled (from
+    ``k0 = 0``: after the declarations have reached the other session)."""
+    if k0 == 0:
+        time.sleep(0.3)
+    for _ in range(count):
+        pub.publish(np.array([x0, 0.0, 1.0]), np.eye(3), time.time())
+        time.sleep(0.01)
+        sub.poll()
+
+
+def _wait(sub: PoseSubscriber, count: int) -> None:
+    deadline = time.monotonic() + 3.0
+    while sub.received + sub.malformed + sub.unauthenticated + sub.foreign < count and time.monotonic() < deadline:
+        time.sleep(0.005)
+        sub.poll()
+
+
+def test_stamps_that_are_not_times_are_malformed(sessions):
+    a, b, c = sessions
+    sub = PoseSubscriber(b, KEY)
+    pub = PosePublisher(a, KEY)
+    _genuine(pub, sub, 0, 10)
+    raw = a.declare_publisher(KEY)
+    payload, _ = encode(PoseSample(11, time.time(), np.array([3.0, 0.0, 1.0]), np.eye(3)))
+    for seq, stamp in ((11, float("nan")), (12, float("inf")), (13, -1.0)):
+        raw.put(payload, attachment=struct.pack("<Qd", seq, stamp))
+    _wait(sub, 13)
+    assert sub.malformed == 3 and sub.accepted == 10
+    np.testing.assert_allclose(sub.state().position, [0.0, 0.0, 1.0])
+    assert all(np.isfinite(stamp) for _, _, stamp in sub.drain_raw())  # nothing unfit for the log
+
+
+@pytest.mark.parametrize("offset_s", [100.0, -100.0, 0.2, -0.2])
+def test_a_stamp_far_from_its_arrival_cannot_open_the_gates(sessions, offset_s):
+    """Today's bug: a stamp 100 s ahead made the speed and position gates 100 s wide; a sample 3 m away passed."""
+    a, b, c = sessions
+    sub = PoseSubscriber(b, KEY)
+    pub = PosePublisher(a, KEY)
+    _genuine(pub, sub, 0, 20)
+    pub.publish(np.array([3.0, 0.0, 1.0]), np.eye(3), time.time() + offset_s)
+    _wait(sub, 21)
+    assert sub.bad_stamps == 1 and sub.accepted == 20
+    assert sub.last_rejection.endswith("ms off its arrival time")
+    np.testing.assert_allclose(sub.state().position, [0.0, 0.0, 1.0])
+    _genuine(pub, sub, 21, 5)  # the genuine stream goes on
+    assert sub.accepted == 25 and not sub.fault()
+
+
+def test_the_gates_scale_with_the_local_clock_not_the_stamps(sessions):
+    """Stamps 40 ms apart (inside the skew bound each) on samples 1 ms apart: the gates open by what the local
+    clock saw, so a sample 10 cm away (4 m/s over the claimed 40 ms... but 100 m/s over 1 ms) is rejected."""
+    a, b, c = sessions
+    sub = PoseSubscriber(b, KEY)
+    pub = PosePublisher(a, KEY)
+    _genuine(pub, sub, 0, 20)
+    t = time.time()
+    pub.publish(np.array([0.1, 0.0, 1.0]), np.eye(3), t + 0.04)
+    _wait(sub, 21)
+    assert sub.accepted == 20 and sub.rejected == 1 and "off the prediction" in sub.last_rejection
+
+
+def test_a_copied_source_id_is_a_fault(sessions):
+    """An attacker reads the genuine publisher's entity id from its samples and sends its own under it: every
+    sample claims the genuine source, so only the interleaved sequences give it away."""
+    a, b, c = sessions
+    sub = PoseSubscriber(b, KEY)
+    pub = PosePublisher(a, KEY)
+    seen = []
+    spy = c.declare_subscriber(KEY, lambda s: seen.append(s.source_info.source_id))
+    _genuine(pub, sub, 0, 10)
+    assert seen
+    forger = c.declare_publisher(KEY)
+    seq = 10
+    for k in range(20):  # forged samples one ahead of the genuine ones, interleaved with them
+        seq += 1
+        payload, att = encode(PoseSample(seq + 1, time.time(), np.array([0.0, 0.002 * k, 1.0]), np.eye(3)))
+        forger.put(payload, attachment=att, source_info=zenoh.SourceInfo(seen[0], seq + 1))
+        pub.publish(np.array([0.0, 0.0, 1.0]), np.eye(3), time.time())
+        time.sleep(0.01)
+        sub.poll()
+    _wait(sub, 50)
+    spy.undeclare()
+    assert sub.foreign == 0  # the id was copied: the one-publisher rule alone sees nothing
+    assert sub.conflicts >= 3 and sub.fault().startswith(f"two sequences under one source id on {KEY}")
+
+
+def test_authenticated_stream(sessions):
+    a, b, c = sessions
+    key = MocapKey(bytes(range(32)))
+    sub = PoseSubscriber(b, KEY, mac_key=key)
+    pub = PosePublisher(a, KEY, mac_key=key)
+    _genuine(pub, sub, 0, 10)
+    assert sub.accepted == 10 and sub.unauthenticated == 0
+    forgers = [PosePublisher(c, KEY), PosePublisher(c, KEY, mac_key=MocapKey(bytes(32)))]
+    for forger in forgers:  # without the key and with another key: never used, not even as a second source
+        forger.publish(np.array([0.5, 0.0, 1.0]), np.eye(3), time.time())
+    _wait(sub, 12)
+    assert sub.unauthenticated == 2 and sub.foreign == 0 and not sub.fault()
+    captured = []
+    spy = c.declare_subscriber(KEY, lambda s: captured.append((s.payload.to_bytes(), s.attachment.to_bytes(),
+                                                               s.source_info)))
+    time.sleep(0.3)
+    _genuine(pub, sub, 10, 10)
+    spy.undeclare()
+    assert len(captured) >= 5
+    replayer = c.declare_publisher(KEY)
+    for payload, attachment, info in captured[:5]:  # valid MACs, old stamps and sequence numbers, the id copied
+        replayer.put(payload, attachment=attachment, source_info=info)
+    _wait(sub, 27)
+    assert sub.accepted == 20 and sub.rejected == 5
+    _genuine(pub, sub, 20, 5)
+    assert sub.accepted == 25
+    np.testing.assert_allclose(sub.state().position, [0.0, 0.0, 1.0])
