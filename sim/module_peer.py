@@ -67,7 +67,8 @@ class ModulePeer:
         self._session = None
         self._publisher = None
         self._vmocap = None
-        sim_config = SimConfig(physics_hz=c.physics_hz, motor_time_constant=c.motor_time_constant)
+        sim_config = SimConfig(physics_hz=c.physics_hz, motor_time_constant=c.motor_time_constant,
+                               mocap_rate_hz=0.0)  # the virtual mocap measures
         self.sim = PyBulletBackend(assembly, sim_config, observers=[self._observe])
         self._last_velocity: tuple[float, np.ndarray] | None = None
         """(time s, body velocity m/s) at the previous physics step, for the accelerometers."""

@@ -5,7 +5,8 @@ rather than derived from the collision shapes), one box collision shape per modu
 thrusts ``c_f u`` along each rotor axis at each rotor position and drag torques ``(-1)^q c_m u`` sum, on a rigid
 body, to exactly the wrench ``A u`` about the COM, so each physics step applies one force at the COM and one
 torque (two calls instead of 4n; the n = 60 assembly has 240 rotors). Rotor inputs pass a first-order lag and
-the ``[0, u_max]`` bounds. The measured state can carry Gaussian noise and a latency.
+the ``[0, u_max]`` bounds. Sensors as real ones are: motion capture at its own rate with noise and a latency
+(:class:`~sim.mocap_sensor.MocapSensor`), gyros with noise, a constant bias and a delay.
 
 Time is advanced explicitly with :meth:`PyBulletBackend.advance_to` (lockstep: as fast as the CPU allows);
 with ``realtime=True`` it is paced to the wall clock.
@@ -27,9 +28,11 @@ with quiet_stderr():  # pybullet prints its build date on stderr at import: nois
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command
-from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
+from groundstation.backends.section import SIM_GYRO_DELAY, SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
 from groundstation.control.state import RigidState
-from groundstation.rotations import matrix_to_quat, quat_to_matrix, rotvec_to_matrix
+from groundstation.estimation.measurement import PoseMeasurement
+from groundstation.rotations import matrix_to_quat, quat_to_matrix
+from sim.mocap_sensor import MocapSensor
 
 
 @dataclass(frozen=True)
@@ -38,14 +41,23 @@ class SimConfig:
     """Physics step rate, Hz."""
     motor_time_constant: float = SIM_MOTOR_TIME_CONSTANT
     """First-order lag of every rotor input, s."""
+    mocap_rate_hz: float = 100.0
+    """Motion capture samples per second of simulated time (:meth:`PyBulletBackend.mocap_samples`), Hz; 0: none
+    (the ``fly`` dry run's virtual mocap measures instead)."""
     position_noise: float = 0.0
-    """Std of measured position noise, m."""
+    """Std of the mocap position noise per axis, m."""
     attitude_noise: float = 0.0
-    """Std of measured attitude noise (rotation vector), rad."""
+    """Std of the mocap attitude noise (rotation vector, per axis), rad."""
     latency: float = 0.0
-    """Delay of the measured state, s."""
+    """Mocap latency from capture to delivery, s."""
     gyro_noise: float = 0.005
-    """Std of the gyro rate in the telemetry, rad/s."""
+    """Std of the gyro rate in the telemetry, per reading, rad/s (a BMI088 at 250 Hz: ~0.004)."""
+    gyro_bias: float = 0.005
+    """Std of each gyro axis' constant bias (drawn once from ``seed``), rad/s (a BMI088 after calibration at
+    rest: a few mrad/s)."""
+    gyro_delay: float = SIM_GYRO_DELAY
+    """Age of the gyro rate in the telemetry, s (a Crazyflie's rides on the state packet that echoes a command:
+    one link round trip, ~4 ms)."""
     realtime: bool = False
     """Pace the simulation to the wall clock."""
     gui: bool = False
@@ -61,6 +73,10 @@ class PyBulletBackend(BackendBase):
         self.assembly = assembly
         self.config = config or SimConfig()
         self._rng = np.random.default_rng(self.config.seed)
+        c = self.config
+        self._gyro_bias = self._rng.normal(0.0, c.gyro_bias, 3)
+        self._mocap = MocapSensor(c.mocap_rate_hz, c.position_noise, c.attitude_noise, c.latency, self._rng)
+        self._mocap_out: list[PoseMeasurement] = []
         ground = (0.0, 0.0, assembly.resting_height)
         self.start_position = np.array(start_position if start_position is not None else ground, dtype=float)
         self._client: int | None = None
@@ -133,7 +149,8 @@ class PyBulletBackend(BackendBase):
         self._u_cmd = applied_command(u, self._u_cmd.size, self._armed, self.assembly.params.u_max)
 
     def telemetry(self) -> Telemetry:
-        gyro = self._state.omega + self._rng.normal(0.0, self.config.gyro_noise, 3)
+        gyro = self._delayed(self.config.gyro_delay).omega + self._gyro_bias + self._rng.normal(
+            0.0, self.config.gyro_noise, 3)
         return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
                          gyro=gyro)
 
@@ -156,11 +173,6 @@ class PyBulletBackend(BackendBase):
 
     # -- simulation ---------------------------------------------------------------------------------------------
     @property
-    def measurement_latency(self) -> float:
-        """Age of :meth:`measured_state`, s."""
-        return self.config.latency
-
-    @property
     def time(self) -> float:
         """Simulated time, s."""
         return self._t
@@ -179,6 +191,7 @@ class PyBulletBackend(BackendBase):
             pb.stepSimulation(physicsClientId=c)
             self._t += self._dt
             self._record()
+            self._mocap_out += self._mocap.observe(self._t, self._state)
             for observe in self.observers:
                 observe(self._t, self._state)
             if self.config.realtime:
@@ -207,23 +220,23 @@ class PyBulletBackend(BackendBase):
         r = quat_to_matrix(q) @ self._r_if.T
         return RigidState(np.array(pos), np.array(vel), r, r.T @ np.array(omega_w))
 
-    def measured_state(self) -> RigidState:
-        """The state as a sensor would report it: delayed by ``latency`` and with noise."""
-        target = self._t - self.config.latency
-        while len(self._history) > 1 and self._history[1][0] <= target + 1e-12:
-            self._history.popleft()
-        s = self._history[0][1]
-        cfg = self.config
-        if cfg.position_noise == 0 and cfg.attitude_noise == 0:
-            return s
-        dr = rotvec_to_matrix(self._rng.normal(0, cfg.attitude_noise, 3))
-        return RigidState(s.position + self._rng.normal(0, cfg.position_noise, 3), s.velocity, s.rotation @ dr,
-                          s.omega)
+    def mocap_samples(self) -> list[PoseMeasurement]:
+        """The motion capture's samples delivered since the last call (times: capture, simulated s)."""
+        out, self._mocap_out = self._mocap_out, []
+        return out
+
+    def _delayed(self, age: float) -> RigidState:
+        """The physics state ``age`` s ago (the oldest kept, if older)."""
+        target = self._t - age
+        for t, state in reversed(self._history):
+            if t <= target + 1e-12:
+                return state
+        return self._history[0][1]
 
     def _record(self) -> None:
         self._state = self._query_state()
         self._history.append((self._t, self._state))
-        horizon = self.config.latency + 2 * self._dt
+        horizon = self.config.gyro_delay + 2 * self._dt
         while self._history and self._history[0][0] < self._t - horizon - 1e-12:
             self._history.popleft()
 

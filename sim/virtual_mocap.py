@@ -1,7 +1,7 @@
 """Virtual motion capture: the simulator's physics pose published on Zenoh like a real mocap system.
 
-Called after every physics step; publishes at ``rate_hz`` with Gaussian noise and a latency (poses are held back
-and sent ``latency`` later), stamped with the host's wall clock at measurement time, the same codec and
+Called after every physics step; publishes what the sensor model (:class:`~sim.mocap_sensor.MocapSensor`: a rate,
+Gaussian noise, a latency) delivers, stamped with the host's wall clock at capture time, with the same codec and
 keys the ``mocap-bridge`` uses, so a dry run goes through Zenoh end to end.
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 from groundstation.control.state import RigidState
 from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.zenoh_link import PosePublisher
-from groundstation.rotations import rotvec_to_matrix
+from sim.mocap_sensor import MocapSensor
 
 
 class VirtualMocap:
@@ -30,15 +30,15 @@ class VirtualMocap:
                  attitude_noise: float = 0.0, latency: float = 0.0, seed: int = 0, clock=time.time,
                  threaded: bool = False, activity: LoopActivity | None = None) -> None:
         self._pub = publisher
-        self._period = 1.0 / rate_hz
-        self._next = 0.0
-        self._pos_noise, self._att_noise, self._latency = position_noise, attitude_noise, latency
-        self._rng = np.random.default_rng(seed)
+        self._sensor = MocapSensor(rate_hz, position_noise, attitude_noise, latency, np.random.default_rng(seed))
         self._clock = clock
-        self._pending: deque = deque()
         self.published = 0
         self.paused = False
         """While True nothing is published (fault injection: a mocap dropout)."""
+        self.frozen = False
+        """While True the pose last published is published again, freshly stamped (fault injection: a tracker
+        that holds a lost body's pose)."""
+        self._held = None
         self._outbox: deque = deque()
         self._activity = activity or LoopActivity()
         self._closed = False
@@ -48,19 +48,18 @@ class VirtualMocap:
             self._thread.start()
 
     def on_step(self, t_sim: float, state: RigidState) -> None:
-        if t_sim + 1e-9 >= self._next:
-            self._next += self._period * max(1, int((t_sim - self._next) / self._period) + 1)
-            pos = state.position + self._rng.normal(0.0, self._pos_noise, 3)
-            rot = state.rotation @ rotvec_to_matrix(self._rng.normal(0.0, self._att_noise, 3))
-            self._pending.append((t_sim + self._latency, pos, rot, self._clock()))
-        while self._pending and self._pending[0][0] <= t_sim + 1e-9:
-            _, pos, rot, stamp = self._pending.popleft()
-            if not self.paused:
-                if self._thread is None:
-                    self._pub.publish(pos, rot, stamp)
-                else:
-                    self._outbox.append((pos, rot, stamp))  # no wake-up: the thread sends between periods
-                self.published += 1
+        for m in self._sensor.observe(t_sim, state):
+            if self.paused:
+                continue
+            if not self.frozen or self._held is None:
+                self._held = m
+            stamp = self._clock() - (t_sim - m.t)  # the host's wall clock when the pose was captured
+            m = self._held
+            if self._thread is None:
+                self._pub.publish(m.position, m.rotation, stamp)
+            else:
+                self._outbox.append((m.position, m.rotation, stamp))  # no wake-up: the thread sends between periods
+            self.published += 1
 
     def _send_loop(self) -> None:
         while not self._closed:

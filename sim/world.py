@@ -44,10 +44,13 @@ class SimulatedWorld:
 
         def observe(t_sim, state):
             vmocap.paused = faults.mocap_paused
+            vmocap.frozen = faults.mocap_frozen
             vmocap.on_step(t_sim, state)
 
         self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
-                                                           motor_time_constant=cfg.backend.motor_time_constant),
+                                                           motor_time_constant=cfg.backend.motor_time_constant,
+                                                           gyro_delay=cfg.backend.gyro_delay_s,
+                                                           mocap_rate_hz=0.0),  # the virtual mocap measures
                                        observers=[observe])
         self.backend.connect()
         self._stack.callback(self.backend.close)

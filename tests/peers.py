@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -19,6 +22,28 @@ UNTIMED_LINK = {"max_latency": 0.5}
 """Crazyflie backend settings for tests that are not about the round-trip bound: the simulated modules are threads
 or processes of this loaded machine, and the shipped 14 ms bound measures their scheduling (CI once saw "14 ms >
 14 ms"). The bound itself is tested by the fault table's 30 ms rows."""
+
+
+_SPAWNED = itertools.count()
+
+
+def peer_process(tmp_path: Path, *args: str) -> subprocess.Popen:
+    """``groundstation sim-peer ARGS`` in its own process, as an operator starts it, returned once its links are
+    open (the "simulating ..." line it prints then); its stderr goes to a file in ``tmp_path``. A peer that exits
+    or is not ready in 30 s fails the test with what it printed (a fixed sleep was too short on a loaded machine
+    and too long on an idle one)."""
+    err = tmp_path / f"sim-peer-{next(_SPAWNED)}.err"
+    with open(err, "w") as fh:
+        proc = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer", *args],
+                                stdout=subprocess.DEVNULL, stderr=fh)
+    deadline = time.monotonic() + 30.0
+    while "simulating " not in err.read_text():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            proc.wait(10)
+            raise AssertionError(f"sim-peer {' '.join(args)} not ready: {err.read_text()}")
+        time.sleep(0.02)
+    return proc
 
 
 def start_peer(peer_class: type[ModulePeer], port: int, mocap_port: int, assembly=ASM,

@@ -16,6 +16,7 @@ from typing import Protocol, Self, runtime_checkable
 import numpy as np
 
 from groundstation.control.state import RigidState
+from groundstation.estimation.measurement import PoseMeasurement
 
 
 @dataclass(frozen=True)
@@ -96,15 +97,11 @@ class SimulatedBackend(Backend, Protocol):
         """Simulated time, s."""
         ...
 
-    @property
-    def measurement_latency(self) -> float:
-        """Age of :meth:`measured_state`, s."""
-        ...
-
     def advance_to(self, t: float) -> None: ...
     def true_state(self) -> RigidState: ...
-    def measured_state(self) -> RigidState:
-        """The state as a sensor reports it (delayed by ``measurement_latency``, with noise)."""
+    def mocap_samples(self) -> list[PoseMeasurement]:
+        """The simulated motion capture's samples delivered since the last call (at its rate, with its noise and
+        latency; times: capture, simulated s)."""
         ...
 
 

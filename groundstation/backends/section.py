@@ -20,6 +20,10 @@ SIM_PHYSICS_HZ = 240.0
 (``sim``, ``sim-peer``, ``simulate``) starts from."""
 SIM_MOTOR_TIME_CONSTANT = 0.02
 """First-order lag of a simulated rotor, s."""
+SIM_GYRO_DELAY = 0.004
+"""Age of a simulated module's gyro reading, s (a Crazyflie's IMU low-pass and sampling: a few ms)."""
+MAX_GYRO_DELAY = 0.1
+"""Largest ``gyro_delay_s``, s: a body rate older than this is no use to an attitude loop."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -31,6 +35,8 @@ class SimSection:
     """Hz."""
     motor_time_constant: float = Field(SIM_MOTOR_TIME_CONSTANT, ge=0)
     """s."""
+    gyro_delay_s: float = Field(SIM_GYRO_DELAY, ge=0, le=MAX_GYRO_DELAY)
+    """Age of the simulated gyro readings, s (the simulator delays them by this and the estimator compensates it)."""
     modules: tuple[str, ...] = ()
     """Ignored by the simulator; if given, its length must match the assembly (a config about to become a
     hardware one)."""
@@ -52,6 +58,10 @@ class LinkedSection:
     firmware_params: str | None = None
     """A parameter file (``firmware_params/crazyflie.toml``, ``firmware_params/px4/module_params.toml``; relative
     to this config) that preflight checks on every module before arming."""
+    gyro_delay_s: float = Field(0.0, ge=0, le=MAX_GYRO_DELAY)
+    """Age of the modules' gyro readings when the ground station gets them, s: the estimator compensates it (each
+    kind's default: measured against ``sim-peer``; on hardware, measure yours with ``groundstation replay LOG
+    --gyro-lag``)."""
 
     @field_validator("modules")
     @classmethod
@@ -68,6 +78,9 @@ class CrazyflieSection(LinkedSection):
     """``kind = "crazyflie"``."""
 
     kind: str = "crazyflie"
+    gyro_delay_s: float = Field(0.013, ge=0, le=MAX_GYRO_DELAY)
+    """The default: 13 ms against ``sim-peer`` (its 4 ms IMU delay, then the state packet's way back; a
+    delay 4 ms shorter or longer flies as well)."""
     radio_capacity_hz: float = Field(450.0, gt=0)
     """Packets a second one Crazyradio carries (Bitcraze: about 450-500 round trips); every module takes one per
     control period, so modules on one dongle x ``rate_hz`` must stay below it."""
@@ -78,6 +91,8 @@ class MavlinkSection(LinkedSection):
     """``kind = "mavlink"``."""
 
     kind: str = "mavlink"
+    gyro_delay_s: float = Field(0.012, ge=0, le=MAX_GYRO_DELAY)
+    """The default: 11-13 ms against ``sim-peer`` (its 4 ms IMU delay, ATTITUDE at 250 Hz, the link)."""
     pwm_min: int = Field(1000, ge=0)
     """The modules' PWM_MAIN_MIN (zero thrust), us."""
     pwm_max: int = Field(2000, gt=0)

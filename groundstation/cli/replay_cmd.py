@@ -19,10 +19,13 @@ ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_
         ("orientation_error_p95_deg", "attitude error p95 (deg)"), ("max_roll_error_deg", "max roll error (deg)"),
         ("max_yaw_error_deg", "max yaw error (deg)"), ("max_motor_fraction", "max rotor (u/u_max)"),
         ("saturation_fraction", "saturated (airborne, per module)"),
+        ("motor_change_rms", "rotor change per period RMS (u/u_max)"),
         ("loop_period_error_p99_ms", "loop start error p99 (ms)"), ("overruns", "late periods"),
         ("stalls", "loop stalls"),
         ("mocap_rate_hz", "mocap rate (Hz)"), ("mocap_age_p99_ms", "mocap age p99 (ms)"),
         ("mocap_rejected", "mocap rejected"), ("mocap_malformed", "mocap malformed"),
+        ("estimator_rejected", "poses the estimator rejected"), ("position_sigma_max_m", "position std max (m)"),
+        ("innovation_position_p95_mm", "innovation p95 (mm)"), ("innovation_attitude_p95_deg", "innovation p95 (deg)"),
         ("battery_v_min", "battery min (V)"), ("link_latency_ms_max", "link round trip max (ms)"),
         ("link_loss_max", "link loss max"))
 
@@ -46,8 +49,11 @@ def _cell(v) -> str:
               "allocation and report how far the commands differ from the logged ones.")
 @click.option("--rerun-with", "rerun_with", default=None, metavar="FLIGHT.toml",
               help="Re-run with the gains and allocation of this flight config instead of the log's.")
+@click.option("--gyro-lag", "gyro_lag", is_flag=True, help="Find how old the modules' gyro readings were (match "
+              "their rate to the poses'): what backend.gyro_delay_s should be for these modules.")
 def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_dir: str | None,
-                   t_from: float | None, t_to: float | None, rerun: bool, rerun_with: str | None) -> int:
+                   t_from: float | None, t_to: float | None, rerun: bool, rerun_with: str | None,
+                   gyro_lag: bool) -> int:
     """Analyse flight logs: tracking against the setpoint, attitude against its targets, loop timing, mocap,
     motors, battery, link, and every event. Several logs are compared side by side. A damaged chunk or record is
     skipped with a warning naming it, and the rest analysed."""
@@ -73,6 +79,11 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
             replays.append(analyse(path, t_from, t_to, rerun or rerun_with is not None, gains, allocation,
                                    progress=lambda f, task=task: bar.update(task, completed=f)))
             bar.update(task, completed=1.0)
+    lags = {}
+    if gyro_lag:
+        from groundstation.replay.gyro_lag import gyro_lag as find_lag
+
+        lags = {r.path: find_lag(r.path) for r in replays}
     for r in replays:  # damage is skipped, the rest analysed: the operator is told what was skipped
         for line in r.warnings:
             click.echo(f"groundstation: warning: {r.path.name}: {line}", err=True)
@@ -92,7 +103,9 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
                            **asdict(r.metrics),
                            "events": [{"t": t, "level": level, "text": text} for t, level, text in r.events],
                            "timeline": [{"t": t, "phase": p} for t, p in r.timeline],
-                           **({"rerun": asdict(r.rerun)} if r.rerun is not None else {})}) for r in replays]
+                           **({"rerun": asdict(r.rerun)} if r.rerun is not None else {}),
+                           **({"gyro_lag": asdict(lags[r.path]) | {"found": lags[r.path].found}} if lags else {})})
+                for r in replays]
         click.echo(json.dumps(objs[0] if len(objs) == 1 else objs))
         return 0
     table = Table(title="flight logs")
@@ -106,6 +119,16 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
                       *("-" if r.rerun is None else _cell(r.rerun.max_motor_diff) for r in replays))
     out = Console(width=160)
     out.print(table)
+    for path, lag in lags.items():
+        if lag.found:
+            out.print(f"[bold]{path.name}[/]: gyro readings {lag.delay_s * 1e3:.0f} ms old (backend.gyro_delay_s: "
+                      f"{lag.configured_s * 1e3:.0f} ms); rate mismatch {math.degrees(lag.rms_at_delay):.1f} deg/s "
+                      f"RMS there, {math.degrees(lag.rms_at_zero):.1f} at 0 ms, over {lag.samples} pose intervals")
+        else:
+            out.print(f"[bold]{path.name}[/]: no gyro delay found: the body turned at "
+                      f"{math.degrees(lag.rate_rms):.1f} deg/s RMS (at least 5 needed) and the rates matched "
+                      f"{lag.sharpness:.2f} times better at {lag.delay_s * 1e3:.0f} ms than 10 ms beside it (at "
+                      f"least 1.25 needed): fly a manoeuvre that turns")
     for r in replays:
         out.print(f"[bold]{r.path.name}[/]: " + " -> ".join(f"{p} ({t:.1f} s)" for t, p in r.timeline))
         for t, level, text in r.events:

@@ -21,6 +21,8 @@ OPTIONS = {"trajectory.kind": "--trajectory", "trajectory.duration": "--duration
 """The flight-config key each option sets: the options are checked as a flight config is (the same bounds)."""
 NOISE = {"position_noise": 1e-3, "attitude_noise_deg": 0.2, "latency_s": 5e-3}
 """``--noise``: mocap-like noise (m, deg) and latency (s)."""
+EXACT = {"position_noise": 0.0, "attitude_noise_deg": 0.0, "latency_s": 0.0}
+"""Without ``--noise``: exact poses, at once (still at the mocap's rate, through the estimator)."""
 
 
 @click.command("simulate")
@@ -48,23 +50,25 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
     from groundstation.control.geometric import Gains
     from groundstation.control.trajectory import FlightPlan, make_track
     from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
+    from groundstation.runtime.flight_config import estimator_settings
     from sim.pybullet_backend import PyBulletBackend, SimConfig
 
     plot_path = writable_output(plot, (".png", ".svg", ".pdf")) if plot else None
     cfg, asm = _checked(assembly, {
         "assembly": assembly, "rate_hz": control_hz, "allocation": allocation,
-        "backend": {"kind": "sim", "physics_hz": physics_hz}, "mocap": NOISE if noise else {},
+        "backend": {"kind": "sim", "physics_hz": physics_hz}, "mocap": NOISE if noise else EXACT,
         "trajectory": {"kind": trajectory, "duration": duration, "height": height, "size": size, "period": period,
                        "roll_deg": roll}})
     t, m = cfg.trajectory, cfg.mocap
     track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
-    mocap = dict(position_noise=m.position_noise, attitude_noise=np.radians(m.attitude_noise_deg),
-                 latency=m.latency_s) if noise else {}
-    sim = SimConfig(physics_hz=cfg.backend.physics_hz, realtime=realtime, gui=gui, **mocap)
+    sim = SimConfig(physics_hz=cfg.backend.physics_hz, gyro_delay=cfg.backend.gyro_delay_s, realtime=realtime,
+                    gui=gui, mocap_rate_hz=m.rate_hz,
+                    position_noise=m.position_noise, attitude_noise=np.radians(m.attitude_noise_deg),
+                    latency=m.latency_s)
     with PyBulletBackend(asm, sim) as backend:
         plan = FlightPlan(ground=tuple(backend.start_position), track=track)
         rec = fly_simulated(asm, plan, backend, Gains(**asdict(cfg.gains)), cfg.rate_hz, cfg.allocation,
-                            FlightVolume())
+                            FlightVolume(), estimator=estimator_settings(cfg))
     metrics = asdict(rec.metrics) | dict(assembly=assembly, trajectory=trajectory, n=asm.n,
                    controllable_dof=asm.controllable_dof, crash_reason=rec.crash_reason)
     if plot_path is not None:

@@ -69,6 +69,14 @@ class _RepeatingCrazyflie(Crazyflie):
         self.link.needs_resending = True
         super()._start_connection_setup()
 
+    def _no_answer_do_retry(self, pk, pattern):
+        # A repeat's timer can fire while close_link sets the link to None: cflib 0.1.34's send_packet checks the
+        # link and then uses it, and the timer thread's traceback ("'NoneType' object has no attribute
+        # 'send_packet'") reached the operator's terminal. A closed link has nothing left to repeat.
+        if self.link is not None:
+            with contextlib.suppress(AttributeError):  # closed between that check and cflib's own use of it
+                super()._no_answer_do_retry(pk, pattern)
+
 
 class _Unparsed(logging.Filter):
     """Counts, and keeps off the terminal, the tracebacks cflib logs when a packet breaks one of its callbacks:
@@ -120,6 +128,9 @@ def _close(cf: Crazyflie) -> None:
     app only answers commands), and closing joins both. Wake them first (cflib 0.1.34 internals: ``incoming``, the
     driver's ``in_queue``, where a None packet is skipped, and the UDP receive thread's stop flag ``_sp``, set before
     a version request whose answer ends its receive)."""
+    for timer in list(cf._answer_patterns.values()):  # no repeat after the close (see _no_answer_do_retry)
+        if timer is not None:
+            timer.cancel()
     cf.incoming.stop()
     in_queue = getattr(cf.link, "in_queue", None)
     if in_queue is not None:

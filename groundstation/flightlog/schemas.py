@@ -32,7 +32,8 @@ def _obj(description: str, properties: dict, required: tuple[str, ...] = ()) -> 
     return out
 
 
-_STATE = _obj("the state the controller used (mocap pose, filtered velocity, gyro body rate)", {
+_STATE = _obj("the state the controller used (the estimator's, at the period's time; body rate: the gyros' less "
+              "their estimated bias)", {
     "position": _vec(3, "m"), "velocity": _vec(3, "m/s"),
     "orientation": _vec(4, "quaternion x, y, z, w"), "rpy_deg": _vec(3, "ZYX roll, pitch, yaw, deg"),
     "omega": _vec(3, "body rate, body frame, rad/s")})
@@ -58,7 +59,18 @@ CONTROL = _obj("one control period", {
     "applied": _per_module("motors-off records: rotor inputs the backend reported, fraction of u_max",
                            _vec(4, "fraction of u_max")),
     "motors_off": {"type": "boolean", "description": "the motors were commanded off in this period"},
-    "mocap_age_s": {"type": "number", "description": "age of the pose used, s"},
+    "mocap_age_s": {"type": "number", "description": "time since the capture of the newest pose fused, s"},
+    "estimate": _obj("the estimator's uncertainty and health", {
+        "position_sigma_m": {"type": "number", "description": "position std per axis, m"},
+        "velocity_sigma_mps": {"type": "number", "description": "velocity std per axis, m/s"},
+        "attitude_sigma_deg": {"type": "number", "description": "attitude std per axis, deg"},
+        "gyro_bias_radps": _vec(3, "estimated gyro bias, body frame, rad/s"),
+        "disturbance_mps2": _vec(3, "acceleration the model misses, world frame, m/s^2"),
+        "innovation_position_m": _vec(3, "newest pose's position minus the estimate at its capture time, m"),
+        "innovation_attitude_deg": _vec(3, "newest pose's attitude relative to the estimate, body rotation "
+                                           "vector, deg"),
+        "fused": {"type": "integer", "description": "poses fused so far"},
+        "rejected": {"type": "integer", "description": "poses the innovation gates rejected so far"}}),
     "loop": _obj("timing of the previous period", {
         "start_error_s": {"type": "number"}, "compute_s": {"type": "number"}, "overruns": {"type": "integer"}}),
 }, required=("t", "phase", "motors"))

@@ -204,6 +204,36 @@ class ReplayFigures(FlightFigures):
     link_latency_ms_max: tuple[float, ...]
     link_loss_max: tuple[float, ...]
     """Largest lost share of commands per module."""
+    estimator_rejected: int
+    """Poses the estimator's innovation gates rejected (the last count logged; 0 for logs before it)."""
+    position_sigma_max_m: float
+    """Largest position std the estimator reported (blind flight shows here), m (NaN: not logged)."""
+    innovation_position_p95_mm: float
+    """95th percentile of the newest pose's position innovation, over the periods, mm (NaN: not logged)."""
+    innovation_attitude_p95_deg: float
+    """...and of its attitude innovation, deg."""
+
+
+@dataclass
+class _Estimates:
+    """The estimator's figures from the control records."""
+
+    rejected: int = 0
+    sigma_max: float = -math.inf
+    position: Decimated = field(default_factory=Decimated)
+    attitude: Decimated = field(default_factory=Decimated)
+
+    def add(self, e: dict) -> None:
+        self.rejected = e["rejected"]
+        self.sigma_max = max(self.sigma_max, e["position_sigma_m"])
+        self.position.add(math.hypot(*e["innovation_position_m"]) * 1e3)
+        self.attitude.add(math.hypot(*e["innovation_attitude_deg"]))
+
+    def result(self) -> dict:
+        p95 = lambda d: float(np.percentile(d.rows, 95)) if d.rows else math.nan  # noqa: E731
+        return {"estimator_rejected": self.rejected,
+                "position_sigma_max_m": self.sigma_max if self.sigma_max > -math.inf else math.nan,
+                "innovation_position_p95_mm": p95(self.position), "innovation_attitude_p95_deg": p95(self.attitude)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,6 +273,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     metrics: FlightMetrics | None = None
     series = Decimated()
     modules = _Modules()
+    estimates = _Estimates()
     events_raw: list[tuple[float, str, str]] = []
     timeline: list[tuple[float, str]] = []
     mocap: dict = {}
@@ -284,6 +315,8 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
                         d["attitude_target"]["rpy_deg"], motors, PHASES.index(d["phase"])))
             if rr is not None:
                 rr.add(d)
+            if "estimate" in d:
+                estimates.add(d["estimate"])
         elif rec.topic == "/log":
             events_raw.append((rec.log_time, *d))
         elif rec.topic == "/backend/telemetry":
@@ -315,7 +348,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
         mocap_missed=mocap.get("missed", 0), duration_s=duration,
         phase=summary.get("phase", timeline[-1][1] if timeline else ""),
         reason=summary.get("reason", "") if summary else NO_END,
-        stalls=sum("loop stalled" in text for _, _, text in events), **modules.result())
+        stalls=sum("loop stalled" in text for _, _, text in events), **modules.result(), **estimates.result())
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
                np.array([r[3] for r in rows]), np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),

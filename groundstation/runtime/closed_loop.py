@@ -22,11 +22,15 @@ from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.trajectory import FlightPlan
 from groundstation.errors import PreflightError
+from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import LoopStats, SimClock
 from groundstation.runtime.metrics import FlightSummary
 
 AllocationMode = Literal["clip", "bounded"]
+MOCAP_WAIT_S = 0.05
+"""Simulated time the assembly rests before the flight, s: the simulated mocap's first poses (a sample interval
+and its latency) reach the estimator."""
 
 
 @dataclass(frozen=True)
@@ -114,9 +118,10 @@ def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float) -> N
 def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBackend, gains: Gains | None = None,
                   control_hz: float = 250.0, allocation: AllocationMode = "clip",
                   volume: FlightVolume | None = None, policy: FailsafePolicy | None = None,
-                  log=None) -> FlightRecord:
+                  log=None, estimator: EstimatorSettings | None = None) -> FlightRecord:
     """Fly ``plan`` in lockstep on a connected simulated ``backend``: the flight loop of ``fly`` with the
-    simulator's clock and its physics state as the pose source."""
+    simulator's clock, its mocap samples as the pose source, and the same estimator (``estimator``: its settings,
+    matching the simulated mocap's)."""
     model = ControlModel.from_assembly(assembly)
     hover_check(model, plan)
     volume_check(plan, volume or FlightVolume())
@@ -125,7 +130,9 @@ def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBacken
     if not report.ok:
         raise PreflightError("backend preflight failed: " + "; ".join(report.issues))
     flight = Flight(assembly, plan, backend, PhysicsPoseSource(backend), gains=gains, allocation=allocation,
-                    policy=policy, log=log, truth=backend.true_state, record=True)
+                    policy=policy, log=log, truth=backend.true_state, record=True,
+                    estimator=RigidBodyFilter(estimator or EstimatorSettings(), model.mass))
+    backend.advance_to(backend.time + MOCAP_WAIT_S)  # as fly's preflight, the first poses before anything spins
     wall0 = time.perf_counter()
     stats = flight.run(SimClock(backend), control_hz)
     return record_of(flight, time.perf_counter() - wall0, plan.duration, stats)

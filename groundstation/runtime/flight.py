@@ -8,7 +8,12 @@ States and transitions (each logged as an event)::
                                not following its reference, a module fault the other modules can fly
                                through: the faulty ones isolated)--> landing
          any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale or link degraded with
-                      "stop", a module fault the others cannot fly through)--> emergency
+                      "stop", a module fault the others cannot fly through, the position estimate's
+                      uncertainty beyond its bound)--> emergency
+
+The state comes from the estimator (:mod:`groundstation.estimation`): mocap fused with the modules' gyros and the
+commanded wrench, at the period's time. Through a mocap outage it flies on the estimate (a blind landing) while
+the position's uncertainty stays within ``max_position_sigma_m``.
 
 ``landing`` descends from where the reference is to below the ground and ends in ``done``: motors off and the
 modules disarmed (they can fly again). ``emergency`` sends the backend's emergency stop in the same period it is
@@ -28,7 +33,7 @@ import numpy as np
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
-from groundstation.backends.base import Backend, SimulatedBackend
+from groundstation.backends.base import Backend, SimulatedBackend, Telemetry
 from groundstation.control.allocation import allocate, allocate_bounded
 from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
@@ -36,6 +41,8 @@ from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
 from groundstation.errors import ArmingError
+from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
+from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.loop_activity import LoopActivity
 from groundstation.runtime.loop import (
     Clock,
@@ -53,9 +60,16 @@ RATE_WINDOW_S = 1.0
 
 
 class PoseSource(Protocol):
-    def state(self) -> RigidState | None: ...
-    def age(self) -> float: ...
-    def set_body_rate(self, omega: np.ndarray | None) -> None: ...
+    """Where the flight's pose measurements come from (Zenoh mocap, a simulator's sensor model)."""
+
+    def now(self) -> float:
+        """The clock the measurements are timed on, s."""
+        ...
+
+    def measurements(self) -> list[PoseMeasurement]:
+        """The poses taken since the last call, in capture order."""
+        ...
+
     def fault(self) -> str: ...
     def integrity(self) -> MocapIntegrity: ...
 
@@ -75,19 +89,16 @@ class MocapIntegrity:
 
 
 class PhysicsPoseSource:
-    """State straight from a simulated backend (with its configured noise and latency)."""
+    """A simulated backend's motion capture (its rate, noise and latency), on its simulated clock."""
 
     def __init__(self, backend: SimulatedBackend) -> None:
         self._backend = backend
 
-    def state(self) -> RigidState | None:
-        return self._backend.measured_state()
+    def now(self) -> float:
+        return self._backend.time
 
-    def age(self) -> float:
-        return self._backend.measurement_latency
-
-    def set_body_rate(self, omega: np.ndarray | None) -> None:
-        pass
+    def measurements(self) -> list[PoseMeasurement]:
+        return self._backend.mocap_samples()
 
     def fault(self) -> str:
         return ""
@@ -124,6 +135,13 @@ class FailsafePolicy:
     five periods are logged as warnings."""
     on_log_failure: Literal["land", "continue"] = "land"
     """The log writer failed (a full disk): land, or fly on unlogged."""
+    max_position_sigma_m: float = 0.5
+    """Flying on the estimate alone (mocap stale, or its poses rejected), the motors stop once the position's
+    standard deviation (per axis) passes this, m: until then the flight lands blind, level, at
+    ``blind_descent_mps``."""
+    blind_descent_mps: float = 0.5
+    """A landing begun because mocap went stale descends at this rate, m/s (from 1 m in 2 s: the estimate's
+    uncertainty grows with the cube of the time flown blind)."""
     max_tracking_error_m: float = 0.5
     """Airborne, the measured position farther than this from the reference lands the flight: the assembly is not
     following its commands (held down, too heavy for its modules, an assembly file that is not the one flying).
@@ -240,6 +258,11 @@ class Recording:
     phase: list = field(default_factory=list)
 
 
+LANDING_DEPTH = 0.02
+"""A landing aims this far below the ground, m: the touchdown's last thrust presses the assembly down."""
+BLIND_LANDING_DEPTH = 0.15
+"""A blind landing (on the estimate alone) aims this far below the ground, m: the estimate may be several cm off
+after seconds without mocap (measured in the dry run: 5-8 cm high after 2 s), and aiming low lands it anyway."""
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
@@ -252,11 +275,15 @@ class Flight:
                  policy: FailsafePolicy | None = None, log=None, requests: Requests | None = None,
                  before_period: Callable[[float], None] | None = None, truth=None, on_status=None,
                  activity: LoopActivity | None = None, record: bool = False,
-                 to_log_time: Callable[[float], float] | None = None) -> None:
+                 to_log_time: Callable[[float], float] | None = None,
+                 estimator: RigidBodyFilter | None = None) -> None:
         self.assembly, self.plan, self.backend, self.pose = assembly, plan, backend, pose
         self.gains = gains or Gains()
         self.model = ControlModel.from_assembly(assembly)
         self.alloc = allocate if allocation == "clip" else allocate_bounded
+        self.estimator = estimator or RigidBodyFilter(EstimatorSettings(), self.model.mass)
+        """The flight's only source of state (``estimator``: one that has already followed the poses, in preflight;
+        by default a new one with the default settings)."""
         self.policy = policy or FailsafePolicy()
         self.log = log
         self.requests = requests or Requests()
@@ -310,17 +337,41 @@ class Flight:
                         f"{self.phase} -> {phase}" + (f": {why}" if why else ""))
             self.phase = phase
 
+    def _estimate(self, telemetry: Telemetry) -> tuple[RigidState | None, float]:
+        """The estimator brought to now with the gyros and every new measurement: the state (None before the first
+        measurement) and the age of the newest measurement fused, s."""
+        est = self.estimator
+        now = self.pose.now()
+        est.predict(now, telemetry.gyro if telemetry.gyro.size == 3 else None)
+        for m in self.pose.measurements():
+            est.correct(m)
+        return est.state(), est.age(now)
+
+    def integrity(self) -> MocapIntegrity:
+        """The pose stream's counters, the estimator's rejections included."""
+        src, est = self.pose.integrity(), self.estimator
+        return MocapIntegrity(src.rejected + est.rejected, src.malformed, src.foreign,
+                              est.last_rejection if est.rejected and est.last_rejection else src.why)
+
     def _emergency(self, t: float, why: str) -> None:
         self.backend.emergency_stop()
+        self.estimator.command(None)
         self._last_u = np.zeros_like(self._last_u)
         self.reason = why
         self._set_phase(t, Phase.EMERGENCY, why)
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
-    def _begin_landing(self, t: float, from_position: np.ndarray, why: str) -> None:
+    def _begin_landing(self, t: float, from_position: np.ndarray, why: str, blind: bool = False) -> None:
+        """Land from ``from_position`` in the plan's landing time, or, ``blind`` (on the estimate alone), at
+        ``blind_descent_mps``."""
         ground = np.array(self.plan.ground)
-        touchdown = (float(from_position[0]), float(from_position[1]), float(ground[2]) - 0.02)
-        self._landing = (t, Ramp(tuple(from_position), touchdown, self.plan.landing_s))
+        below = BLIND_LANDING_DEPTH if blind else LANDING_DEPTH
+        touchdown = (float(from_position[0]), float(from_position[1]), float(ground[2]) - below)
+        duration = self.plan.landing_s
+        if blind:
+            duration = max(0.5, (float(from_position[2]) - touchdown[2]) / self.policy.blind_descent_mps)
+            self.estimator.set_ground(float(ground[2]))
+        self._landing = (t, Ramp(tuple(from_position), touchdown, duration))
         self.reason = self.reason or why
         self._set_phase(t, Phase.LANDING, why)
 
@@ -353,8 +404,8 @@ class Flight:
             self._emergency(t, self.requests.why("operator stop"))
             return False
         telemetry = self.backend.telemetry()
-        self.pose.set_body_rate(telemetry.gyro if telemetry.gyro.size == 3 else None)  # the mocap attitude gate
-        state, age = self.pose.state(), self.pose.age()
+        est = self.estimator
+        state, age = self._estimate(telemetry)
         if any(telemetry.module_faults):
             if not self._on_module_fault(t, state, telemetry):
                 return False
@@ -370,26 +421,29 @@ class Flight:
                 return False
             if self.phase.airborne and state is not None:
                 self._begin_landing(t, state.position, degraded)
-        fault = self.pose.fault()
+        fault = self.pose.fault() or est.fault()
         if fault:
             why = f"mocap fault: {fault}"
             if self.policy.on_mocap_fault == "stop" or state is None:
                 self._emergency(t, why)
                 return False
-            if self.phase.airborne:
-                self._begin_landing(t, state.position, why)
+            if self.phase.airborne:  # the estimator's fault: every pose rejected, so landing on the estimate
+                self._begin_landing(t, state.position, why, blind=bool(est.fault()))
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
-            integrity = self.pose.integrity()
+            integrity = self.integrity()
             if integrity.rejected:
                 why += f"; {integrity.rejected} samples rejected, last: {integrity.why}"
             if self.policy.on_mocap_stale == "stop" or state is None:
                 self._emergency(t, why)
                 return False
             if self.phase != Phase.LANDING:
-                self._begin_landing(t, state.position, why)
-        if telemetry.gyro.size == 3:  # IMU rates beat differentiated mocap for the attitude loop
-            state = RigidState(state.position, state.velocity, state.rotation, telemetry.gyro)
+                self._begin_landing(t, state.position, why + ": landing blind on the estimate", blind=True)
+            sigma = est.estimate().position_sigma
+            if sigma > self.policy.max_position_sigma_m:
+                self._emergency(t, f"{why}: the position estimate's uncertainty {sigma:.2f} m > "
+                                   f"{self.policy.max_position_sigma_m:g} m")
+                return False
         if not (np.all(np.isfinite(state.position)) and np.all(np.isfinite(state.rotation))):
             self._emergency(t, "non-finite state")
             return False
@@ -431,6 +485,7 @@ class Flight:
             self._emergency(t, "non-finite motor command")
             return False
         self.backend.send(u)
+        est.command(self.model.allocation[:3] @ u)
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
         return True
@@ -482,6 +537,7 @@ class Flight:
 
     def _finish(self, t: float) -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
+        self.estimator.command(None)
         self._last_u = np.zeros_like(self._last_u)
         self._set_phase(t, Phase.DONE, "landed")
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
@@ -526,6 +582,15 @@ class Flight:
                       "roll_target_deg": np.degrees(roll_target), "yaw_target_deg": np.degrees(yaw_target),
                       "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
                       "motors": fractions, "mocap_age_s": age, "loop": timing}
+            est = self.estimator
+            e = est.estimate()
+            if e is not None:
+                record["estimate"] = {"position_sigma_m": e.position_sigma, "velocity_sigma_mps": e.velocity_sigma,
+                                      "attitude_sigma_deg": np.degrees(e.attitude_sigma),
+                                      "gyro_bias_radps": e.gyro_bias, "disturbance_mps2": e.disturbance,
+                                      "innovation_position_m": est.innovation_position,
+                                      "innovation_attitude_deg": np.degrees(est.innovation_attitude),
+                                      "fused": est.fused, "rejected": est.rejected}
             if truth is not None:
                 record["truth"] = {"position": truth.position, "rotation": truth.rotation}
             self.log.record("/control", record, tw)
@@ -542,7 +607,7 @@ class Flight:
             if t - t_w >= RATE_WINDOW_S:  # periods actually run, not the configured rate
                 self._rate_hz, self._rate_window = (self.periods - n_w) / (t - t_w), (t, self.periods)
             self.on_status(Status(t, self.phase, age, float(u.max() / self.model.u_max), battery,
-                                  st.overruns if st is not None else 0, self._rate_hz, self.pose.integrity()))
+                                  st.overruns if st is not None else 0, self._rate_hz, self.integrity()))
 
     # -- run --------------------------------------------------------------------------------------------------------
     def run(self, clock: Clock, rate_hz: float, realtime: bool = False) -> LoopStats:
@@ -588,8 +653,7 @@ class Flight:
                 self.reason = str(exc)
                 self._set_phase(0.0, Phase.ABORTED, f"arming failed: {exc}")
                 return self._stats
-            self.backend.telemetry()
-            self.pose.state()
+            self._estimate(self.backend.telemetry())
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:

@@ -27,7 +27,8 @@ from groundstation import config
 from groundstation.backends.section import BackendSection, SimSection
 from groundstation.control.geometric import Gains
 from groundstation.errors import ConfigError, GroundstationError
-from groundstation.runtime.flight import FailsafePolicy
+from groundstation.estimation.filter import EstimatorSettings
+from groundstation.runtime.flight import FailsafePolicy, QualityBounds
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_DURATION_S = 3600.0
@@ -113,13 +114,17 @@ class MocapSection:
     bridge or the simulator listens)."""
     rate_hz: float = Field(100.0, gt=0, le=1000)
     """Simulated mocap only: publish rate, Hz (camera systems run at 100-360 Hz; above 1 kHz is a typo)."""
-    position_noise: float = Field(0.0005, ge=0)
-    """Simulated mocap only: position noise std, m (bounded by the subscriber's gate: :func:`bound_issues`)."""
-    attitude_noise_deg: float = Field(0.1, ge=0)
-    """Simulated mocap only: attitude noise std, deg (bounded likewise)."""
+    position_noise: float = Field(0.0005, ge=0, le=0.05)
+    """The mocap's position noise std per axis, m: what the estimator assumes (at least
+    :data:`MIN_POSITION_NOISE`) and what simulated mocap adds (at most 5 cm: a worse mocap is no mocap)."""
+    attitude_noise_deg: float = Field(0.1, ge=0, le=5)
+    """The mocap's attitude noise std per axis, deg: assumed (at least :data:`MIN_ATTITUDE_NOISE_DEG`) and
+    simulated, likewise."""
     latency_s: float = Field(0.005, ge=0)
-    """Simulated mocap only: latency, s (with one sample interval below ``failsafe.mocap_timeout_s``:
-    :func:`bound_issues`)."""
+    """The mocap's latency from capture to the ground station, s (with one sample interval below
+    ``failsafe.mocap_timeout_s``: :func:`bound_issues`): the estimator times each pose this long before its stamp
+    on the local clock (a mocap bridge stamps when it gets the frame: the camera system's own latency, a few ms),
+    and simulated mocap delivers its poses this late."""
     max_speed: float = Field(10.0, gt=0, le=MAX_MOCAP_SPEED)
     """Poses implying faster motion than this are rejected as outliers, m/s (at most :data:`MAX_MOCAP_SPEED`)."""
     tls: TlsSection | None = None
@@ -150,6 +155,13 @@ class MocapSection:
         return self
 
 
+MIN_POSITION_NOISE = 1e-4
+"""Least position noise the estimator assumes, m: a simulator's exact poses still differ from the estimator's
+model, and a zero would make it trust one pose without limit."""
+MIN_ATTITUDE_NOISE_DEG = 0.02
+"""Least attitude noise the estimator assumes, deg (likewise)."""
+
+
 @dataclass(frozen=True, config=_STRICT)
 class TrajectorySection:
     kind: Literal["hover", "circle", "figure8"] = "figure8"
@@ -165,6 +177,8 @@ class TrajectorySection:
     """Roll target while tracking, deg (below ``failsafe.max_tilt_deg``: :func:`bound_issues`)."""
     takeoff_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
     """Take-off time, s (at most an hour)."""
+    settle_s: float = Field(1.5, ge=0, le=MAX_DURATION_S)
+    """Settling before tracking (the attitude target blended to the trajectory's) and holding after it, s each."""
     landing_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
     """Landing time, s (at most an hour)."""
 
@@ -207,9 +221,29 @@ class FailsafeSection:
     """A gap between control periods beyond this stops the motors (the modules have stopped theirs), s."""
     on_log_failure: Literal["land", "continue"] = FailsafePolicy.on_log_failure
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
+    max_position_sigma_m: float = Field(FailsafePolicy.max_position_sigma_m, gt=0, le=MAX_GEOFENCE_M)
+    """Flying blind on the estimate, the motors stop beyond this position std, m."""
+    blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, gt=0, le=5)
+    """A landing begun on stale mocap descends at this rate, m/s (at most 5: faster is a fall)."""
     max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
     """Airborne, the measured position farther than this from the reference lands the flight, m (below the
     geofence's diagonal: :func:`bound_issues`)."""
+
+
+@dataclass(frozen=True, config=_STRICT)
+class QualitySection:
+    """How far a flight that flew its plan may degrade and still be nominal (``fly`` exit 0, else 3):
+    :class:`~groundstation.runtime.flight.QualityBounds` holds the defaults, what each means and what was measured.
+    A lab that publishes its flights tightens them."""
+
+    attitude_error_p95_deg: float = Field(QualityBounds.attitude_error_p95_deg, gt=0, le=180)
+    """deg."""
+    max_attitude_error_deg: float = Field(QualityBounds.max_attitude_error_deg, gt=0, le=180)
+    """deg."""
+    max_saturation: float = Field(QualityBounds.max_saturation, gt=0, le=1)
+    """Share of the airborne periods, fraction."""
+    max_late_fraction: float = Field(QualityBounds.max_late_fraction, gt=0, le=1)
+    """Share of the control periods, fraction."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -229,6 +263,15 @@ class FlightConfig:
     trajectory: TrajectorySection = TrajectorySection()
     gains: GainsSection = GainsSection()
     failsafe: FailsafeSection = FailsafeSection()
+    quality: QualitySection = QualitySection()
+
+
+def estimator_settings(cfg: FlightConfig) -> EstimatorSettings:
+    """The estimator's view of the config's mocap and gyros (its other settings keep their defaults)."""
+    m = cfg.mocap
+    return EstimatorSettings(position_noise=max(m.position_noise, MIN_POSITION_NOISE),
+                             attitude_noise=math.radians(max(m.attitude_noise_deg, MIN_ATTITUDE_NOISE_DEG)),
+                             gyro_delay=cfg.backend.gyro_delay_s)
 
 
 def mocap_mac_key(m: MocapSection, base: Path, src: str):
@@ -330,7 +373,6 @@ def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
       farther apart, so a larger bound could only fire outside, after the geofence stopped the motors.
     """
     from groundstation.assembly.module import FULL_CELL_V
-    from groundstation.mocap.zenoh_link import SubscriberSettings
 
     period = 1.0 / cfg.rate_hz
     rate, rate_key = cfg.rate_hz, "rate_hz"
@@ -379,12 +421,6 @@ def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
         yield ("mocap.latency_s", f"{m.latency_s:g} s plus a sample interval ({1.0 / m.rate_hz:g} s at mocap.rate_hz) "
                                   f"is not below failsafe.mocap_timeout_s = {f.mocap_timeout_s:g} s: every pose "
                                   f"would be stale")
-    gates = SubscriberSettings()
-    for key, sigma, gate, unit in (("position_noise", m.position_noise, gates.position_gate, "m"),
-                                   ("attitude_noise_deg", m.attitude_noise_deg, gates.attitude_gate_deg, "deg")):
-        if 3 * math.sqrt(2) * sigma > gate:
-            yield (f"mocap.{key}", f"{sigma:g} {unit} is above {gate / (3 * math.sqrt(2)):.3g} {unit}: genuine poses "
-                                   f"would fall outside the subscriber's {gate:g} {unit} gate")
     if abs(t.roll_deg) >= f.max_tilt_deg:
         yield ("trajectory.roll_deg", f"{t.roll_deg:g} deg is not below failsafe.max_tilt_deg = {f.max_tilt_deg:g} "
                                       f"deg: the target would trip the tilt failsafe")

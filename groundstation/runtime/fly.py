@@ -43,6 +43,8 @@ from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.trajectory import Circle, Figure8, FlightPlan, Hover, make_track
 from groundstation.errors import ConfigError, PreflightError, UsageError
+from groundstation.estimation.filter import RigidBodyFilter
+from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog, claim
@@ -68,6 +70,7 @@ from groundstation.runtime.flight import (
 from groundstation.runtime.flight_config import (
     FlightConfig,
     TrajectorySection,
+    estimator_settings,
     load_flight_config,
     mocap_mac_key,
     mocap_security,
@@ -93,8 +96,10 @@ class Faults:
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
+    mocap_frozen: bool = False
+    """The virtual mocap publishes its last pose again and again, freshly stamped."""
     corrupt_pose: bool = False
-    """The pose source returns NaN."""
+    """The pose source hands the estimator NaN positions."""
     link_lost: bool = False
     """The backend reports its link lost."""
     tied_down: bool = False
@@ -144,7 +149,10 @@ class _LoggedPose:
         self._stats_at = (-np.inf, 0)
         """(monotonic time, accepted count) of the last /mocap/stats record."""
 
-    def state(self):
+    def now(self) -> float:
+        return self._sub.now()
+
+    def measurements(self) -> list[PoseMeasurement]:
         for t_mono, payload, stamp in self._sub.drain_raw():
             # Log time: when the pose arrived (the flight's clock); publish time: when the mocap measured it (the
             # publisher's wall clock, the stamp inside the payload).
@@ -163,16 +171,10 @@ class _LoggedPose:
                                               "conflicts": sub.conflicts, "resyncs": sub.resyncs, "rate_hz": rate},
                              self._to_log(now))
             self._stats_at = (now, sub.accepted)
-        s = self._sub.state()
-        if s is not None and self._faults.corrupt_pose:
-            return type(s)(np.full(3, np.nan), s.velocity, s.rotation, s.omega)
-        return s
-
-    def age(self) -> float:
-        return self._sub.age()
-
-    def set_body_rate(self, omega) -> None:
-        self._sub.set_body_rate(omega)
+        out = self._sub.measurements()
+        if self._faults.corrupt_pose:
+            return [PoseMeasurement(m.t, np.full(3, np.nan), m.rotation) for m in out]
+        return out
 
     def fault(self) -> str:
         return self._sub.fault()
@@ -252,7 +254,8 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
         raise ConfigError(f"the {kind.name} backend needs one link per module", path=src, key="backend.modules")
     t = cfg.trajectory
     track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
-    plan = FlightPlan((0.0, 0.0, assembly.resting_height), track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
+    plan = FlightPlan((0.0, 0.0, assembly.resting_height), track, takeoff_s=t.takeoff_s, settle_s=t.settle_s,
+                      landing_s=t.landing_s)
     model = ControlModel.from_assembly(assembly)
     f = cfg.failsafe
     volume = FlightVolume(tuple(np.array(f.geofence_lower) + 0.2), tuple(np.array(f.geofence_upper) - 0.2))
@@ -305,13 +308,13 @@ def _claim_log(log_path: str | Path | None, log_dir: Path, src: str) -> Path:
 def fly(config_path: str | Path, *, duration: float | None = None, log_path: str | Path | None = None,
         requests: Requests | None = None, faults: Faults | None = None,
         on_period: Callable[[float], None] | None = None, on_status=None, handle_signals: bool = False,
-        activity: LoopActivity | None = None, live_port: int | None = None,
-        bounds: QualityBounds | None = None) -> FlyResult:
+        activity: LoopActivity | None = None, live_port: int | None = None) -> FlyResult:
     """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
     thread (e.g. a status display) work between control periods, like the log writer does. ``live_port``: serve
     the log's channels over the Foxglove WebSocket protocol on 127.0.0.1 while flying (from the writer process).
     ``handle_signals``: SIGINT, SIGTERM and SIGHUP land (or, before arming, end the flight unarmed), from the
-    start. ``bounds``: how far a flight may degrade and still be nominal (:attr:`FlyResult.degraded`).
+    start. How far a flight may degrade and still be nominal (:attr:`FlyResult.degraded`): the config's
+    ``[quality]``.
 
     Stages: :func:`prepare` (input), open (the world of the backend kind, Zenoh, the log), :func:`_preflight`,
     :func:`_run`, and the end; the ``with`` block closes everything in reverse order, motors first. The end (phase,
@@ -324,7 +327,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     restore = _install_signals(requests, started) if handle_signals else None
     try:
         return _fly(config_path, duration, log_path, requests, faults or Faults(), on_period, on_status,
-                    activity or LoopActivity(), live_port, bounds or QualityBounds(), started)
+                    activity or LoopActivity(), live_port, started)
     finally:
         if restore is not None:
             restore()
@@ -335,8 +338,9 @@ class _Stopped(Exception):
 
 
 def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on_period, on_status,
-         activity: LoopActivity, live_port: int | None, bounds: QualityBounds, started: threading.Event) -> FlyResult:
+         activity: LoopActivity, live_port: int | None, started: threading.Event) -> FlyResult:
     p = prepare(config_path, duration, log_path)
+    bounds = QualityBounds(**asdict(p.cfg.quality))
     ended_cleanly = [False]
     offset = time.time() - time.monotonic()
 
@@ -355,7 +359,8 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
                                                            p.security, p.mac_key))
             gs_session = open_session(listen=ours, connect=theirs, security=p.security)
             stack.callback(gs_session.close)
-            sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed), mac_key=p.mac_key)
+            sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed, latency=m.latency_s),
+                                 mac_key=p.mac_key)
             stack.callback(sub.close)
             log = FlightLog(p.log_file, {"config": json.dumps(asdict(p.cfg)), "config_path": p.src,
                                          "code_version": code_version(),
@@ -374,11 +379,13 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
             """Why the flight never ran (preflight refused, the operator, an error), for the end."""
             wall0 = None
             try:
-                plan = _preflight(p, world, sub, pose, log, firmware_issues, to_log, requests)
+                estimator = RigidBodyFilter(estimator_settings(p.cfg), p.assembly.mass)
+                plan = _preflight(p, world, sub, pose, estimator, log, firmware_issues, to_log, requests)
                 flight = Flight(p.assembly, plan, world.backend, pose, gains=Gains(**asdict(p.cfg.gains)),
                                 allocation=p.cfg.allocation, policy=FailsafePolicy(**asdict(p.cfg.failsafe)),
                                 log=log, requests=requests, before_period=world.before_period(on_period),
-                                to_log_time=to_log, truth=world.truth, on_status=on_status, activity=activity)
+                                to_log_time=to_log, truth=world.truth, on_status=on_status, activity=activity,
+                                estimator=estimator)
                 started.set()
                 wall0 = time.perf_counter()
                 _run(flight, p.cfg, log, to_log)
@@ -434,21 +441,27 @@ def _release(path: Path) -> None:
             path.unlink()
 
 
-def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, log: FlightLog,
+def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est: RigidBodyFilter, log: FlightLog,
                firmware_issues: list[str], to_log: Callable[[float], float], requests: Requests) -> FlightPlan:
     """Stage 3: let the mocap stream start (and a simulated assembly settle), check the backend, mocap, level and
-    stillness, log the scene; the plan re-anchored where mocap sees the assembly. Raises PreflightError, or
-    :class:`_Stopped` when the operator asks to land or stop meanwhile (a signal, a key)."""
+    stillness, log the scene; the plan re-anchored where mocap sees the assembly; ``est`` follows the poses from
+    here on (the flight goes on with it). Raises PreflightError, or :class:`_Stopped` when the operator asks to
+    land or stop meanwhile (a signal, a key)."""
     m = p.cfg.mocap
     watch_start = time.monotonic()
     deadline = watch_start + PREFLIGHT_TIMEOUT_S
     _stop_if_asked(requests)
+    # The assembly rests: the estimator, on mocap alone (no command, no gyro yet), says where it is, how it is
+    # oriented and whether it moves.
     while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < PREFLIGHT_WATCH_S)
            and time.monotonic() < deadline):
         world.settle(0.02)
         time.sleep(0.005)
         _stop_if_asked(requests)
-    s = pose.state()
+        est.predict(pose.now(), None)
+        for sample in pose.measurements():
+            est.correct(sample)
+    s = est.state()
     issues = list(world.backend.preflight().issues) + firmware_issues
     _stop_if_asked(requests)
     if sub.fault():
@@ -472,7 +485,8 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, log:
         raise PreflightError("preflight failed: " + "; ".join(issues))
     # Take off from where mocap sees the assembly (hardware is never exactly at the nominal spot).
     t = p.cfg.trajectory
-    plan = FlightPlan(tuple(float(v) for v in s.position), p.track, takeoff_s=t.takeoff_s, landing_s=t.landing_s)
+    plan = FlightPlan(tuple(float(v) for v in s.position), p.track, takeoff_s=t.takeoff_s, settle_s=t.settle_s,
+                      landing_s=t.landing_s)
     volume_check(plan, p.volume)
     log.event("info", "preflight passed", to_log(time.monotonic()))
     return plan

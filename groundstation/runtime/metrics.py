@@ -47,6 +47,11 @@ class FlightFigures:
     """Largest rotor command, fraction of u_max."""
     saturation_fraction: tuple[float, ...]
     """Per module: share of airborne periods in which one of its rotors was at a bound."""
+    motor_change_rms: float
+    """RMS, over the rotors and the tracking periods, of a rotor command's change since the period before,
+    fraction of u_max: the chatter that sensor noise puts on the motors (NaN: no tracking)."""
+    motor_change_max: float
+    """The largest such change, fraction of u_max."""
     mocap_age_p99_ms: float
     """99th percentile of the age of the pose a period used, ms."""
     loop_period_error_p50_ms: float
@@ -160,6 +165,11 @@ class FlightMetrics:
         self.saturated = np.zeros(n_modules, dtype=np.int64)
         """Airborne periods in which a rotor of the module was saturated."""
         self.airborne = 0
+        self._last_tracked: np.ndarray | None = None
+        """The rotor commands of the previous period, if it was a tracking one."""
+        self.motor_change_sq = 0.0
+        self.motor_change_n = 0
+        self.motor_change_max = 0.0
         self.start_error = Histogram(limit=0.05, resolution=1e-5)
         """|Actual - scheduled| start of each period, s."""
         self.compute = Histogram(limit=0.05, resolution=1e-5)
@@ -185,6 +195,15 @@ class FlightMetrics:
             self.position.add(np.asarray(position, float) - np.asarray(position_ref, float))
         m = np.asarray(motors, float)
         self.max_motor = max(self.max_motor, float(m.max()) if m.size else 0.0)
+        if phase == Phase.TRACK:
+            if self._last_tracked is not None and self._last_tracked.shape == m.shape and m.size:
+                change = m - self._last_tracked
+                self.motor_change_sq += float(np.sum(change * change))
+                self.motor_change_n += change.size
+                self.motor_change_max = max(self.motor_change_max, float(np.abs(change).max()))
+            self._last_tracked = m
+        else:
+            self._last_tracked = None
         if mocap_age is not None and math.isfinite(mocap_age):
             self.mocap_age.add(mocap_age)
         if phase in MEASURED:
@@ -219,6 +238,9 @@ class FlightMetrics:
             max_motor_fraction=self.max_motor,
             saturation_fraction=tuple((self.saturated / self.airborne).tolist()) if airborne
             else (0.0,) * self.saturated.size,
+            motor_change_rms=math.sqrt(self.motor_change_sq / self.motor_change_n) if self.motor_change_n
+            else math.nan,
+            motor_change_max=self.motor_change_max if self.motor_change_n else math.nan,
             mocap_age_p99_ms=self.mocap_age.percentile(99) * 1e3,
             loop_period_error_p50_ms=self.start_error.percentile(50) * 1e3,
             loop_period_error_p99_ms=self.start_error.percentile(99) * 1e3,

@@ -25,7 +25,7 @@ from groundstation.errors import PreflightError
 from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
 from tests.faults.table import Fault, fault, rows
-from tests.peers import ROOT
+from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import config_with, read_log, sitl_config
 
 PEER_PORT, RELAY_PORT = 19900, 19910
@@ -287,15 +287,12 @@ def f_full_disk(cli, tmp_path):
 # -- the Crazyflie link: a loopback relay between the ground station and the simulated modules ----------------------
 @contextlib.contextmanager
 def _relayed(tmp_path, **faults):
-    procs = [subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
-                               str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
-                               "--mocap", "tcp/127.0.0.1:7481", "--params",
-                               str(ROOT / "firmware_params/crazyflie.toml")],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     args = [f"--{k.replace('_', '-')}={v}" for k, v in faults.items()]
-    procs.append(subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(RELAY_PORT), "--target",
-                                   str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL))
-    time.sleep(2.0)
+    procs = [subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(RELAY_PORT), "--target",
+                               str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL)]
+    procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                              "--mocap", "tcp/127.0.0.1:7481", "--params",
+                              str(ROOT / "firmware_params/crazyflie.toml")))
     try:
         yield sitl_config(tmp_path, "crazyflie", RELAY_PORT, "tcp/127.0.0.1:7481")
     finally:
@@ -379,14 +376,11 @@ def f_params_silent_modules(cli, tmp_path):
 @fault("MAVLink link losing 5 % (arming, flight, disarm)", "arms (commands repeated until acknowledged), flies, "
                                                              "lands")
 def f_mavlink_5_percent_loss(cli, tmp_path):
-    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
-                             str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", "mavlink", "--port", "19960",
-                             "--mocap", "tcp/127.0.0.1:7497", "--params",
-                             str(ROOT / "firmware_params/px4/module_params.toml")],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     relay = subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", "19970", "--target", "19960",
                               "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL)
-    time.sleep(2.0)
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", "mavlink", "--port",
+                        "19960", "--mocap", "tcp/127.0.0.1:7497", "--params",
+                        str(ROOT / "firmware_params/px4/module_params.toml"))
     try:
         cfg = sitl_config(tmp_path, "mavlink", 19970, "tcp/127.0.0.1:7497")  # its 0.5 s link timeout: 5 % loss
         res = fly(cfg, duration=3.0, log_path=tmp_path / "px4.mcap")
@@ -411,11 +405,8 @@ def f_stdin_closed(cli, tmp_path):
 # -- a Crazyflie module that stops flying in flight -------------------------------------------------------------------
 @contextlib.contextmanager
 def _crazyflie_peer(tmp_path):
-    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
-                             str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
-                             "--mocap", "tcp/127.0.0.1:7633", "--params", str(ROOT / "firmware_params/crazyflie.toml")],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(2.0)
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                        "--mocap", "tcp/127.0.0.1:7633", "--params", str(ROOT / "firmware_params/crazyflie.toml"))
     try:
         yield sitl_config(tmp_path, "crazyflie", PEER_PORT, "tcp/127.0.0.1:7633")
     finally:

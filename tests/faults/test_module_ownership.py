@@ -11,14 +11,13 @@ import contextlib
 import os
 import subprocess
 import sys
-import time
 
 import pytest
 
 from groundstation.errors import PreflightError
 from groundstation.runtime.fly import fly
 from tests.faults.table import Fault, fault, rows
-from tests.peers import ROOT
+from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import read_log, sitl_config
 
 PORTS = {"crazyflie": (19700, "crtp", "udp://127.0.0.1:{}"), "mavlink": (14700, "mavlink", "udpout:127.0.0.1:{}")}
@@ -28,13 +27,10 @@ MOCAP = "tcp/127.0.0.1:7635"
 @contextlib.contextmanager
 def _peer(tmp_path, kind: str):
     port, protocol, _ = PORTS[kind]
-    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
-                             str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", protocol, "--port", str(port),
-                             "--mocap", MOCAP, "--params",
-                             str(ROOT / ("firmware_params/crazyflie.toml" if kind == "crazyflie"
-                                         else "firmware_params/px4/module_params.toml"))],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(2.0)
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", protocol, "--port",
+                        str(port), "--mocap", MOCAP, "--params",
+                        str(ROOT / ("firmware_params/crazyflie.toml" if kind == "crazyflie"
+                                    else "firmware_params/px4/module_params.toml")))
     try:
         yield sitl_config(tmp_path, kind, port, MOCAP)
     finally:

@@ -58,6 +58,23 @@ def test_replay_reproduces_the_flights_own_figures(sim_flight):
     assert [text for _, _, text in r.events if "->" in text] == [text for _, _, text in res.events]
 
 
+def test_the_estimators_figures_recomputed_from_the_records(sim_flight):
+    """Rejections, the largest position std and the innovations' 95th percentiles, straight from the /control
+    records (read here with the mcap reader, not replay's)."""
+    _, log = sim_flight
+    r = analyse(log)
+    with open(log, "rb") as f:
+        est = [json.loads(m.data)["estimate"] for _, ch, m in make_reader(f).iter_messages(topics=["/control"])
+               if "estimate" in json.loads(m.data)]
+    assert len(est) > 1000
+    assert r.metrics.estimator_rejected == est[-1]["rejected"]
+    assert r.metrics.position_sigma_max_m == max(e["position_sigma_m"] for e in est) < 0.01  # mocap throughout
+    p95 = np.percentile([np.linalg.norm(e["innovation_position_m"]) * 1e3 for e in est], 95)
+    assert r.metrics.innovation_position_p95_mm == pytest.approx(p95) and 0.1 < p95 < 5.0  # 0.5 mm noise
+    p95 = np.percentile([np.linalg.norm(e["innovation_attitude_deg"]) for e in est], 95)
+    assert r.metrics.innovation_attitude_p95_deg == pytest.approx(p95) and 0.01 < p95 < 1.0  # 0.1 deg noise
+
+
 def test_position_rmse_recomputed_from_the_csv(sim_flight, tmp_path):
     """An independent computation: numpy over the exported rows, not the metrics code."""
     res, log = sim_flight

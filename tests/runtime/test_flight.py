@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from groundstation.assembly.assembly_file import load_assembly
-from groundstation.control.state import RigidState
-from groundstation.control.trajectory import FlightPlan, Hover, euler_zyx
+from groundstation.control.trajectory import Attitude, FlightPlan, Hover
+from groundstation.estimation.measurement import PoseMeasurement
+from groundstation.runtime.closed_loop import MOCAP_WAIT_S
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import SimClock
 from sim.pybullet_backend import PyBulletBackend
@@ -15,48 +16,78 @@ from sim.pybullet_backend import PyBulletBackend
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def ready(be):
+    """The simulated mocap's first poses delivered, as ``fly_simulated`` (and ``fly``'s preflight) waits for them."""
+    be.advance_to(be.time + MOCAP_WAIT_S)
+    return be
+
+
 class Tampered(PhysicsPoseSource):
-    """Physics pose, replaced by ``fault(state)`` from ``t_fault`` on."""
+    """The simulated mocap's poses, replaced by ``fault(pose)`` from ``t_fault`` on."""
 
     def __init__(self, backend, t_fault, fault):
         super().__init__(backend)
         self._t_fault, self._fault = t_fault, fault
 
-    def state(self):
-        s = super().state()
-        return self._fault(s) if self._backend.time >= self._t_fault else s
+    def measurements(self):
+        out = super().measurements()
+        return [self._fault(m) for m in out] if self._backend.time >= self._t_fault else out
 
 
-@pytest.mark.parametrize("fault, reason", [
-    (lambda s: RigidState(s.position + [4.0, 0, 0], s.velocity, s.rotation, s.omega), "geofence"),
-    (lambda s: RigidState(s.position, s.velocity, euler_zyx(np.radians(80), 0, 0), s.omega), "tilt"),
-    (lambda s: RigidState(s.position * np.nan, s.velocity, s.rotation, s.omega), "non-finite"),
+def _tilt_deg(rotation) -> float:
+    return float(np.degrees(np.arccos(min(rotation[2, 2], 1.0))))
+
+
+@pytest.mark.parametrize("policy, hover, reason, crossed", [
+    (FailsafePolicy(geofence_upper=(3.5, 3.5, 0.8)), Hover((0, 0, 1.0), 4.0), "left the geofence",
+     lambda position, rotation: position[2] > 0.8),
+    (FailsafePolicy(max_tilt_deg=3.0), Hover((0, 0, 1.0), 4.0, Attitude(roll=np.radians(-5.0))),
+     "tilt beyond 3 deg", lambda position, rotation: _tilt_deg(rotation) > 3.0),
 ])
-def test_failsafe_stops_motors_within_one_period(fault, reason):
+def test_failsafe_stops_motors_within_one_period(policy, hover, reason, crossed):
+    """The estimate crosses the bound on the way to the hover: no command is computed from a state beyond it."""
     asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
     with PyBulletBackend(asm) as be:
-        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
-        flight = Flight(asm, plan, be, Tampered(be, 3.0, fault), policy=FailsafePolicy())
+        plan = FlightPlan(tuple(be.start_position), hover)
+        flight = Flight(asm, plan, ready(be), PhysicsPoseSource(be), policy=policy, record=True)
         flight.run(SimClock(be), 250.0)
         assert flight.phase == "emergency" and reason in flight.reason
         t_stop = [t for t, _, text in flight.events if "emergency" in text][0]
-        assert 3.0 <= t_stop <= 3.0 + 1 / 250 + 1e-9  # detected in the first period after the fault
+        r = flight.recording
+        assert r.t and not any(crossed(p, rot) for p, rot in zip(r.position, r.rotation, strict=True))
+        # airborne; stopped in the period after the last command (lockstep periods start on 1/240 s physics steps)
+        assert 1.0 < t_stop <= r.t[-1] + 1 / 240 + 1e-9
         assert be.telemetry().motors.max() == 0.0  # motors commanded off
-        assert flight.metrics.t_last < t_stop  # no command computed after the stop
+
+
+def test_non_finite_poses_never_reach_the_controller():
+    """NaN positions from the mocap from 3 s on: rejected by the estimator (counted, named), a fault after 50 ms,
+    and the flight lands on the estimate; every command stays finite."""
+    asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+    nan = lambda m: PoseMeasurement(m.t, m.position * np.nan, m.rotation)  # noqa: E731
+    with PyBulletBackend(asm) as be:
+        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
+        flight = Flight(asm, plan, ready(be), Tampered(be, 3.0, nan), record=True)
+        flight.run(SimClock(be), 250.0)
+    assert flight.phase == "done" and flight.reason.startswith("mocap fault: every pose rejected for ")
+    assert "(last: not finite)" in flight.reason
+    assert np.all(np.isfinite(np.array(flight.recording.motors)))
+    assert flight.estimator.rejected >= 5 and flight.integrity().why == "not finite"
 
 
 def test_stale_mocap_with_stop_policy():
     asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
 
     class Stale(PhysicsPoseSource):
-        def age(self):
-            return 1.0 if self._backend.time >= 2.0 else 0.0
+        def measurements(self):
+            out = super().measurements()
+            return out if self._backend.time < 2.0 else []
 
     with PyBulletBackend(asm) as be:
         plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
-        flight = Flight(asm, plan, be, Stale(be), policy=FailsafePolicy(on_mocap_stale="stop"))
+        flight = Flight(asm, plan, ready(be), Stale(be), policy=FailsafePolicy(on_mocap_stale="stop"))
         flight.run(SimClock(be), 250.0)
-    assert flight.phase == "emergency" and "mocap stale" in flight.reason
+    assert flight.phase == "emergency" and flight.reason.startswith("mocap stale (25")
 
 
 class ModuleStops(PyBulletBackend):
@@ -95,7 +126,7 @@ def test_a_module_fault_lands_on_the_rest_or_stops(assembly, k, phase, reason):
     with ModuleStops(asm, k, 3.0) as be:
         be._asm_n = asm.n
         plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
-        flight = Flight(asm, plan, be, PhysicsPoseSource(be))
+        flight = Flight(asm, plan, ready(be), PhysicsPoseSource(be))
         tilts = []
         flight.before_period = lambda t: tilts.append(np.degrees(np.arccos(min(be.true_state().rotation[2, 2], 1.0))))
         flight.run(SimClock(be), 250.0)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from groundstation import config
 from groundstation.assembly.assembly_file import load_assembly
 from groundstation.backends.section import CrazyflieSection, MavlinkSection, SimSection
 from groundstation.errors import ConfigError
@@ -170,8 +171,6 @@ def test_the_sim_loop_runs_at_the_slower_of_control_and_physics():
 @pytest.mark.parametrize("changes, key", [
     ({"mocap": {"latency_s": 0.3}}, "mocap.latency_s"),
     ({"mocap": {"latency_s": 0.2, "rate_hz": 10.0}}, "mocap.latency_s"),  # 0.2 s + 0.1 s sample interval
-    ({"mocap": {"position_noise": 0.01}}, "mocap.position_noise"),
-    ({"mocap": {"attitude_noise_deg": 2.0}}, "mocap.attitude_noise_deg"),
     ({"trajectory": {"roll_deg": -75.0}}, "trajectory.roll_deg"),
     ({"failsafe": {"max_stall_s": 0.005}}, "failsafe.max_stall_s"),  # two periods at 250 Hz: 8 ms
     ({"failsafe": {"max_link_latency_s": 0.02}}, "failsafe.max_link_latency_s"),  # not below the stop latency
@@ -185,6 +184,14 @@ def test_cross_key_bounds(changes, key):
     toy, _ = load_assembly(TOY)
     issues = _issue(FlightConfig(assembly="x"), toy.inertia, **changes)
     assert [k for k, _ in issues] == [key], issues
+
+
+@pytest.mark.parametrize("key, value", [("position_noise", 0.051), ("attitude_noise_deg", 5.1)])
+def test_mocap_noise_beyond_any_mocap_is_refused(key, value):
+    """The estimator's gates scale with the noise it is told, so no noise is inconsistent with them; a noise no
+    mocap has (5 cm, 5 deg) is a typo."""
+    with pytest.raises(ConfigError, match=rf"mocap.{key}: .*less than or equal to"):
+        config.validate(FlightConfig, {"assembly": "x", "mocap": {key: value}})
 
 
 def test_cross_key_bounds_just_inside():

@@ -162,8 +162,9 @@ def test_degradation_names_each_bound_passed():
 def test_a_flight_beyond_its_bounds_says_so_in_its_result_and_log(tmp_path):
     """The figures a nominal dry run really has, judged against bounds it cannot meet."""
     log = tmp_path / "tight.mcap"
-    tight = QualityBounds(max_attitude_error_deg=1e-3)  # the p95 bound, untouched, holds
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7654"), duration=1.0, log_path=log, bounds=tight)
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7654")
+    cfg.write_text(cfg.read_text() + "\n[quality]\nmax_attitude_error_deg = 1e-3\n")  # the p95 bound, untouched, holds
+    res = fly(cfg, duration=1.0, log_path=log)
     assert res.phase == "done" and res.reason == "" and res.nominal  # it flew its plan...
     assert any(d.startswith("max attitude error ") and d.endswith("> 0.001 deg") for d in res.degraded)
     assert _summary(log)["degraded"] == list(res.degraded)

@@ -107,15 +107,30 @@ def test_rests_on_ground_without_thrust_and_commands_are_bounded():
         assert be.telemetry().motors.max() == 0
 
 
-def test_latency_and_noise():
-    cfg = SimConfig(latency=0.05, position_noise=0.01, seed=3)
+def test_mocap_rate_latency_and_noise():
+    """Free fall from 5 m, mocap at 100 Hz with 50 ms latency and 1 cm noise: the samples delivered by 0.5 s were
+    captured every 10 ms up to 0.45 s, each where the fall had the body then (within the noise)."""
+    cfg = SimConfig(mocap_rate_hz=100.0, latency=0.05, position_noise=0.01, seed=3)
     with PyBulletBackend(FULL, cfg, start_position=(0, 0, 5.0)) as be:
         be.advance_to(0.5)  # free fall
-        truth = be.true_state()
-        meas = be.measured_state()
-        fall_delayed = 0.5 * 9.81 * 0.45**2
-        assert meas.position[2] == pytest.approx(5.0 - fall_delayed, abs=0.05)
-        assert truth.position[2] < meas.position[2]
+        samples = be.mocap_samples()
+        assert be.mocap_samples() == []  # handed over once
+    t = np.array([m.t for m in samples])
+    z = np.array([m.position[2] for m in samples])
+    assert len(samples) == 46 and t[-1] == pytest.approx(0.45, abs=1 / 240)  # captured 0.0, 0.01, ... 0.45 s
+    assert np.diff(t) == pytest.approx(0.01, abs=1 / 240)
+    err = z - (5.0 - 0.5 * 9.81 * t ** 2)
+    assert np.abs(err).max() < 0.04 and 0.005 < err.std() < 0.015  # 1 cm noise, not more, not none
+
+
+def test_gyro_bias():
+    """The telemetry's gyro carries a constant bias drawn once from the seed (in free fall, no rotation: it reads
+    the bias alone)."""
+    cfg = SimConfig(gyro_noise=0.0, gyro_bias=0.01, gyro_delay=0.004, seed=5)
+    with PyBulletBackend(FULL, cfg, start_position=(0, 0, 5.0)) as be:
+        be.advance_to(0.1)
+        bias = be.telemetry().gyro - be.true_state().omega  # free fall: no rotation
+    assert np.allclose(bias, np.random.default_rng(5).normal(0.0, 0.01, 3)) and np.abs(bias).max() > 0
 
 
 def test_realtime_mode_paces_to_the_wall_clock():

@@ -1,0 +1,124 @@
+"""Fault-table rows: the mocap goes quiet, breaks off or freezes in flight, and the flight goes on on its
+estimate (issue 21). The link is cut for real (a TCP relay between the ground station's Zenoh session and the
+simulated modules' mocap, resetting every connection), the pose stream paused or frozen in the dry run's
+simulated mocap; tilts are the physics' (dry run) or the mocap's own poses (simulated modules)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+from groundstation.runtime.fly import Faults, fly
+from tests.faults.table import Fault, fault, rows
+from tests.faults.test_fault_table import _records
+from tests.peers import ROOT, peer_process
+from tests.runtime.test_fly import config_with, read_log, sitl_config
+
+PEER_PORT = 19920
+MOCAP_PORT, RELAY_PORT = 7533, 7534
+
+
+def _tilt_deg(q) -> float:
+    return float(np.degrees(np.arccos(np.clip(1 - 2 * (q[0] ** 2 + q[1] ** 2), -1.0, 1.0))))
+
+
+def _truth(log) -> list[tuple[float, str, float, float]]:
+    """(flight time s, phase, true height m, true tilt deg) of every control period of a dry run's log."""
+    _, _, _, motors = read_log(log)
+    return [(m["t"], m["phase"], m["truth"]["position"][2], _tilt_deg(m["truth"]["orientation"]))
+            for _, m in motors if "truth" in m]
+
+
+@contextlib.contextmanager
+def _cuttable(tmp_path):
+    """Simulated Crazyflie modules whose mocap reaches the ground station through a TCP relay that a SIGUSR1
+    cuts for 300 ms; yields the flight config and the relay process."""
+    relay = subprocess.Popen([sys.executable, "-m", "sim.tcp_relay", "--listen", str(RELAY_PORT), "--target",
+                              str(MOCAP_PORT), "--cut-for", "0.3"], stdout=subprocess.PIPE, text=True)
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                        "--mocap", f"tcp/127.0.0.1:{MOCAP_PORT}", "--params",
+                        str(ROOT / "firmware_params/crazyflie.toml"))
+    try:
+        assert relay.stdout.readline().strip() == "ready"
+        yield sitl_config(tmp_path, "crazyflie", PEER_PORT, f"tcp/127.0.0.1:{RELAY_PORT}"), relay
+    finally:
+        for p in (peer, relay):
+            p.terminate()
+            p.wait(10)
+
+
+@fault("mocap: the Zenoh TCP link to simulated Crazyflie modules cut for 300 ms in tracking (a relay resets every "
+       "connection and refuses new ones)", "the session reconnects by itself; the flight lands blind on its "
+       "estimate when the poses go stale and on the poses again once they are back; tilt below 15 deg, exit 1")
+def f_zenoh_link_cut_300ms(cli, tmp_path):
+    with _cuttable(tmp_path) as (cfg, relay):
+        cut = []
+
+        def on_period(t):
+            if t >= 4.5 and not cut:
+                cut.append(t)
+                relay.send_signal(signal.SIGUSR1)
+
+        log = tmp_path / "cut.mcap"
+        res = fly(cfg, duration=4.0, log_path=log, on_period=on_period)
+        relay.terminate()
+        stats = json.loads(relay.communicate(timeout=10)[0].strip().splitlines()[-1])
+    assert stats["cut_began_s"] is not None and stats["accepted"] >= 2  # cut, and connected again after it
+    assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
+    poses = [PoseInFrame.FromString(d) for _, d in _records(log, "/mocap/assembly")]
+    tilts = [_tilt_deg((p.pose.orientation.x, p.pose.orientation.y)) for p in poses]
+    assert max(tilts) < 15.0
+    stamps = np.array([p.timestamp.seconds + p.timestamp.nanos * 1e-9 for p in poses])
+    gap = float(np.diff(stamps).max())
+    assert 0.3 <= gap < 0.8, gap  # the cut, and the reconnection within half a second of its end (Zenoh: 1-4 s)
+
+
+@fault("mocap: no pose for 1 s in tracking (dry run)", "a blind landing on the estimate, the poses fused again "
+       "when they return; touches down upright (tilt below 15 deg), exit 1")
+def f_mocap_blackout_1s(cli, tmp_path):
+    faults = Faults()
+    log = tmp_path / "blackout.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7535"), duration=4.0, log_path=log, faults=faults,
+              on_period=lambda t: setattr(faults, "mocap_paused", 4.5 <= t < 5.5))
+    assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < 15.0
+    ground = truth[0][2]
+    assert abs(truth[-1][2] - ground) < 0.03  # landed, not dropped from the air
+    _, _, _, motors = read_log(log)
+    after = [m["estimate"]["position_sigma_m"] for _, m in motors if "estimate" in m and m["t"] > 5.8]
+    assert after and max(after) < 0.01  # the poses are back: the uncertainty is mocap's again
+
+
+@fault("mocap: a frozen but freshly stamped pose while the assembly flies its figure-8 (dry run)",
+       "rejected within 0.1 s as a frozen stream (a mocap fault, named), a blind landing on the estimate, exit 1")
+def f_mocap_frozen_pose(cli, tmp_path):
+    faults = Faults()
+    frozen = []
+
+    def on_period(t):
+        if t >= 4.5 and not frozen:
+            frozen.append(t)
+            faults.mocap_frozen = True
+
+    log = tmp_path / "frozen.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536"), duration=4.0, log_path=log, faults=faults,
+              on_period=on_period)
+    assert res.phase == "done" and res.reason.startswith("mocap fault: every pose rejected for ")
+    assert "a frozen stream" in res.reason
+    named = [t for t, _, text in res.events if "landing: mocap fault" in text]
+    assert named and named[0] - frozen[0] <= 0.1, (named, frozen)
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+
+
+@pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
+def test_fault(row: Fault, cli, tmp_path):
+    row.run(cli, tmp_path)
