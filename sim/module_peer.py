@@ -72,6 +72,11 @@ class ModulePeer:
         self.sim = PyBulletBackend(assembly, sim_config, observers=[self._observe])
         self._last_velocity: tuple[float, np.ndarray] | None = None
         """(time s, body velocity m/s) at the previous physics step, for the accelerometers."""
+        self._t0 = time.monotonic()
+        """The monotonic clock at simulated time 0 on the real-time schedule, s (moved on when a stall is given up
+        on)."""
+        self._wall_offset = time.time() - time.monotonic()
+        """Wall clock less monotonic clock, s (the stamps are on the wall clock)."""
         self.stop_event = threading.Event()
         self.packets = 0
         """Packets received from the ground station."""
@@ -102,7 +107,10 @@ class ModulePeer:
     # -- shared -------------------------------------------------------------------------------------------------
     def _observe(self, t: float, state) -> None:
         if self._vmocap is not None:
-            self._vmocap.on_step(t, state)
+            # Stamped at the moment the real-time schedule gives the step, not when a peer behind it (starved on a
+            # loaded machine, racing to catch up) gets there: stamped "now", a state 30 ms old looked current and
+            # the ground station's estimator, trusting the stamps, was pulled off by its speed x 30 ms per pose.
+            self._vmocap.on_step(t, state, self._wall_offset + self._t0 + t)
 
     def open(self) -> None:
         c = self.config
@@ -134,19 +142,21 @@ class ModulePeer:
     def run(self, duration: float | None = None) -> None:
         """Simulate in real time until :attr:`stop_event` is set (or ``duration`` s passed)."""
         dt = 1.0 / self.config.physics_hz
-        t0 = time.monotonic()
-        k = 0
-        while not self.stop_event.is_set() and (duration is None or k * dt < duration):
+        self._wall_offset = time.time() - time.monotonic()
+        self._t0 = time.monotonic() - self.sim.time
+        k = round(self.sim.time / dt)
+        start = k
+        while not self.stop_event.is_set() and (duration is None or (k - start) * dt < duration):
             now = time.monotonic()
             self._serve(now)
             self.sim.send(self._rotor_inputs(now))
             k += 1
             self.sim.advance_to(k * dt)
-            remaining = t0 + k * dt - time.monotonic()
+            remaining = self._t0 + k * dt - time.monotonic()
             if remaining > 0:
                 time.sleep(remaining)
             elif remaining < -0.1:  # far behind (machine stalled): resynchronise rather than race
-                t0 -= remaining
+                self._t0 -= remaining
 
     def module_gyro(self, i: int) -> np.ndarray:
         """Module i's gyro: the body rate in the module's frame, rad/s."""

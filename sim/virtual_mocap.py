@@ -47,13 +47,16 @@ class VirtualMocap:
         if self._thread is not None:
             self._thread.start()
 
-    def on_step(self, t_sim: float, state: RigidState) -> None:
+    def on_step(self, t_sim: float, state: RigidState, wall: float | None = None) -> None:
+        """The physics reached ``t_sim`` (s) in ``state``; ``wall``: the host's wall clock that moment belongs to
+        (default: now, for a simulation kept at the present)."""
+        wall = self._clock() if wall is None else wall
         for m in self._sensor.observe(t_sim, state):
             if self.paused:
                 continue
             if not self.frozen or self._held is None:
                 self._held = m
-            stamp = self._clock() - (t_sim - m.t)  # the host's wall clock when the pose was captured
+            stamp = wall - (t_sim - m.t)  # the host's wall clock when the pose was captured
             m = self._held
             if self._thread is None:
                 self._pub.publish(m.position, m.rotation, stamp)

@@ -114,6 +114,68 @@ class Ramp:
                       QUINTIC_ACCEL * length / self.duration**2)
 
 
+LANDING_BRAKE = 1.0
+"""Horizontal deceleration a landing begun in motion brakes with, m/s^2 (a tilt of ~6 deg; up to 10 % more when
+its acceleration at the start points elsewhere, or as much as that acceleration if it is larger)."""
+
+
+def _to_rest(p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, duration: float, t: float):
+    """Per axis, the quintic from ``p0`` moving at ``v0`` and accelerating at ``a0`` to rest at ``p1`` after
+    ``duration`` s: position, velocity and acceleration at ``t`` (held at ``p1`` after)."""
+    if t >= duration:
+        return p1, np.zeros(3), np.zeros(3)
+    d, tt = p1 - p0, duration
+    c3 = (20.0 * d - 12.0 * v0 * tt - 3.0 * a0 * tt ** 2) / (2.0 * tt ** 3)
+    c4 = (-30.0 * d + 16.0 * v0 * tt + 3.0 * a0 * tt ** 2) / (2.0 * tt ** 4)
+    c5 = (12.0 * d - 6.0 * v0 * tt - a0 * tt ** 2) / (2.0 * tt ** 5)
+    return (p0 + v0 * t + 0.5 * a0 * t ** 2 + c3 * t ** 3 + c4 * t ** 4 + c5 * t ** 5,
+            v0 + a0 * t + 3.0 * c3 * t ** 2 + 4.0 * c4 * t ** 3 + 5.0 * c5 * t ** 4,
+            a0 + 6.0 * c3 * t + 12.0 * c4 * t ** 2 + 20.0 * c5 * t ** 3)
+
+
+@dataclass(frozen=True)
+class Landing:
+    """A landing begun wherever the assembly is and however it moves (a failsafe, the operator): the reference
+    goes on from a position, velocity and acceleration, brakes horizontally to rest and descends to
+    ``touchdown_z`` in ``duration``. A reference that started at rest asked the controller to stop a figure-8 at
+    0.5 m/s in one period: the V's pitch target stepped by 16 deg and its rotors saturated (the fault table's
+    reordering row: 21 deg of tilt)."""
+
+    start: tuple[float, float, float]
+    """World, m."""
+    velocity: tuple[float, float, float]
+    """At the start, world, m/s."""
+    acceleration: tuple[float, float, float]
+    """At the start, world, m/s^2."""
+    touchdown_z: float
+    """m"""
+    duration: float
+    """Of the descent, s; the horizontal stop takes at most this."""
+
+    @cached_property
+    def _plan(self) -> tuple[np.ndarray, ...]:
+        p0, v0, a0 = (np.array(x, float) for x in (self.start, self.velocity, self.acceleration))
+        v_h, a_h = v0 * (1.0, 1.0, 0.0), a0 * (1.0, 1.0, 0.0)
+        # Braking at LANDING_BRAKE at most (or the start's acceleration, if larger): the quintic to the rest
+        # point below decelerates by at most 1.5 speed / time, and moves on by about half speed x time.
+        stop_s = min(self.duration, max(1.5 * float(np.linalg.norm(v_h)) / LANDING_BRAKE, 0.3))
+        rest = p0 + v_h * (stop_s / 2.0) + a_h * (stop_s ** 2 / 12.0)
+        return p0, v0 - v_h, a0 - a_h, v_h, a_h, np.array([rest[0], rest[1], self.touchdown_z]), stop_s
+
+    @property
+    def end(self) -> tuple[float, float, float]:
+        """Where it touches down, world, m."""
+        return tuple(float(v) for v in self._plan[5])
+
+    def __call__(self, t: float) -> Setpoint:
+        p0, v_z, a_z, v_h, a_h, p1, stop_s = self._plan
+        t = max(t, 0.0)
+        ph, vh, ah = _to_rest(p0, v_h, a_h, p1, stop_s, t)
+        pz, vz, az = _to_rest(p0, v_z, a_z, p1, self.duration, t)
+        return Setpoint(np.array([ph[0], ph[1], pz[2]]), np.array([vh[0], vh[1], vz[2]]),
+                        np.array([ah[0], ah[1], az[2]]), np.eye(3))
+
+
 @dataclass(frozen=True)
 class Circle:
     """Horizontal circle of ``radius`` (m) around ``center`` (world, m), one lap per ``period`` (s), starting

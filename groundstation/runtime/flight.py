@@ -39,7 +39,7 @@ from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
-from groundstation.control.trajectory import FlightPlan, Ramp, roll_pitch_yaw
+from groundstation.control.trajectory import FlightPlan, Landing, roll_pitch_yaw
 from groundstation.errors import ArmingError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.measurement import PoseMeasurement
@@ -303,7 +303,7 @@ class Flight:
         """(flight time s, level, text) of every transition and failsafe."""
         self.periods = 0
         """Control periods flown (the ones that computed a command)."""
-        self._landing: tuple[float, Ramp] | None = None
+        self._landing: tuple[float, Landing] | None = None
         self._t_prev: float | None = None
         self._stall_warn = 0.02
         """A gap between periods beyond this is a stall worth a warning, s (five periods)."""
@@ -361,17 +361,21 @@ class Flight:
         self._set_phase(t, Phase.EMERGENCY, why)
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
-    def _begin_landing(self, t: float, from_position: np.ndarray, why: str, blind: bool = False) -> None:
-        """Land from ``from_position`` in the plan's landing time, or, ``blind`` (on the estimate alone), at
-        ``blind_descent_mps``."""
-        ground = np.array(self.plan.ground)
-        below = BLIND_LANDING_DEPTH if blind else LANDING_DEPTH
-        touchdown = (float(from_position[0]), float(from_position[1]), float(ground[2]) - below)
+    def _begin_landing(self, t: float, state: RigidState, why: str, blind: bool = False) -> None:
+        """Land in the plan's landing time, or, ``blind`` (on the estimate alone), at ``blind_descent_mps``; the
+        landing reference goes on from the current one (position, velocity, acceleration: the controller's output
+        does not jump) unless the assembly is farther from it than ``max_tracking_error_m``, then from the
+        ``state`` (where and how it moves)."""
+        ref = self.plan(t)
+        if np.linalg.norm(state.position - ref.position) > self.policy.max_tracking_error_m:
+            ref = Setpoint(state.position, state.velocity, np.zeros(3), ref.rotation)
+        z = float(self.plan.ground[2]) - (BLIND_LANDING_DEPTH if blind else LANDING_DEPTH)
         duration = self.plan.landing_s
         if blind:
-            duration = max(0.5, (float(from_position[2]) - touchdown[2]) / self.policy.blind_descent_mps)
-            self.estimator.set_ground(float(ground[2]))
-        self._landing = (t, Ramp(tuple(from_position), touchdown, duration))
+            duration = max(0.5, (float(ref.position[2]) - z) / self.policy.blind_descent_mps)
+            self.estimator.set_ground(float(self.plan.ground[2]))
+        self._landing = (t, Landing(*(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration)),
+                                    z, duration))
         self.reason = self.reason or why
         self._set_phase(t, Phase.LANDING, why)
 
@@ -420,7 +424,7 @@ class Flight:
                 self._emergency(t, degraded)
                 return False
             if self.phase.airborne and state is not None:
-                self._begin_landing(t, state.position, degraded)
+                self._begin_landing(t, state, degraded)
         fault = self.pose.fault() or est.fault()
         if fault:
             why = f"mocap fault: {fault}"
@@ -428,7 +432,7 @@ class Flight:
                 self._emergency(t, why)
                 return False
             if self.phase.airborne:  # the estimator's fault: every pose rejected, so landing on the estimate
-                self._begin_landing(t, state.position, why, blind=bool(est.fault()))
+                self._begin_landing(t, state, why, blind=bool(est.fault()))
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
             integrity = self.integrity()
@@ -438,7 +442,7 @@ class Flight:
                 self._emergency(t, why)
                 return False
             if self.phase != Phase.LANDING:
-                self._begin_landing(t, state.position, why + ": landing blind on the estimate", blind=True)
+                self._begin_landing(t, state, why + ": landing blind on the estimate", blind=True)
             sigma = est.estimate().position_sigma
             if sigma > self.policy.max_position_sigma_m:
                 self._emergency(t, f"{why}: the position estimate's uncertainty {sigma:.2f} m > "
@@ -454,18 +458,18 @@ class Flight:
             self._emergency(t, f"tilt beyond {self.policy.max_tilt_deg:g} deg")
             return False
         if self.requests.land.is_set() and self.phase.airborne:
-            self._begin_landing(t, self.plan(t).position, self.requests.why(OPERATOR_LAND))
+            self._begin_landing(t, state, self.requests.why(OPERATOR_LAND))
         if self.log is not None and self.log.error is not None and not self._log_failure_seen:
             self._log_failure_seen = True
             why = f"log writer failed: {self.log.error}"
             self.events.append((t, "error", why))
             if self.policy.on_log_failure == "land" and self.phase.airborne:
-                self._begin_landing(t, state.position, why)
+                self._begin_landing(t, state, why)
         if self._landing is not None:
-            t_land, ramp = self._landing
-            sp = ramp(t - t_land)
+            t_land, landing = self._landing
+            sp = landing(t - t_land)
             sp = Setpoint(sp.position, sp.velocity, sp.acceleration, _level(self.plan(t).rotation))
-            if t - t_land >= ramp.duration:
+            if t - t_land >= landing.duration:
                 self._finish(t)
                 return False
         else:
@@ -477,7 +481,7 @@ class Flight:
             sp = self.plan(t)
             error = float(np.linalg.norm(state.position - sp.position))
             if error > self.policy.max_tracking_error_m:
-                self._begin_landing(t, state.position, f"not following the reference: {error:.2f} m from it > "
+                self._begin_landing(t, state, f"not following the reference: {error:.2f} m from it > "
                                                        f"{self.policy.max_tracking_error_m:g} m")
         out = control(state, sp, self.model, self.gains)
         u = self.alloc(out.wrench, self.model)
@@ -508,7 +512,7 @@ class Flight:
             return False
         self.model = rest
         self._landing = None  # land from here, on the rest
-        self._begin_landing(t, state.position, f"{names}: landing on the other modules")
+        self._begin_landing(t, state, f"{names}: landing on the other modules")
         return True
 
     def _link_degraded(self, telemetry) -> tuple[str, bool]:

@@ -2,11 +2,13 @@ import numpy as np
 import pytest
 
 from groundstation.control.trajectory import (
+    LANDING_BRAKE,
     Attitude,
     Circle,
     Figure8,
     FlightPlan,
     Hover,
+    Landing,
     Ramp,
     euler_zyx,
     roll_pitch_yaw,
@@ -14,6 +16,7 @@ from groundstation.control.trajectory import (
 
 TRAJECTORIES = [
     Ramp((0, 0, 0.05), (0.3, -0.2, 1.0), 3.0),
+    Landing((0.1, 0.2, 1.0), (0.5, -0.3, 0.1), (0.4, 0.6, 0.0), -0.02, 2.0),
     Circle((0, 0, 1), 0.5, 8.0, 16.0),
     Figure8(0.6, 8.0, 1.0, 16.0),
     FlightPlan((0, 0, 0.05), Figure8(0.6, 8.0, 1.0, 16.0)),
@@ -57,3 +60,24 @@ def test_euler_round_trip_and_hover():
     r = euler_zyx(0.1, -0.2, 0.3)
     np.testing.assert_allclose(roll_pitch_yaw(r), (0.1, -0.2, 0.3))
     assert np.allclose(Hover((0, 0, 1), 1.0)(0.4).velocity, 0)
+
+
+@pytest.mark.parametrize("velocity, acceleration", [((0.5, -0.3, 0.1), (0.4, 0.6, 0.0)), ((0.0, 0.0, -0.2), (0, 0, 0)),
+                                                    ((-0.7, 0.1, 0.0), (0.0, -1.5, 0.3))])
+def test_a_landing_goes_on_from_the_motion_and_comes_to_rest(velocity, acceleration):
+    landing = Landing((0.1, 0.2, 1.0), velocity, acceleration, -0.02, 2.0)
+    first = landing(0.0)
+    np.testing.assert_allclose(first.position, (0.1, 0.2, 1.0))
+    np.testing.assert_allclose(first.velocity, velocity)
+    np.testing.assert_allclose(first.acceleration, acceleration, atol=1e-12)
+    sps = [landing(t) for t in np.linspace(0.0, 2.0, 2001)]
+    last = sps[-1]
+    np.testing.assert_allclose(last.position, landing.end)
+    assert landing.end[2] == -0.02 and np.allclose(last.velocity, 0) and np.allclose(last.acceleration, 0)
+    # brakes about as hard as LANDING_BRAKE, or as the reference already accelerated
+    a_h = max(float(np.linalg.norm(sp.acceleration[:2])) for sp in sps)
+    assert a_h <= 1.1 * max(LANDING_BRAKE, float(np.linalg.norm(acceleration[:2])))
+    # and comes to rest no farther than it would at LANDING_BRAKE from its speed (plus what its acceleration adds)
+    speed = float(np.linalg.norm(velocity[:2]))
+    reach = float(np.linalg.norm(np.subtract(landing.end[:2], (0.1, 0.2))))
+    assert reach <= 0.75 * speed ** 2 / LANDING_BRAKE + 0.3 * speed + 0.1 * float(np.linalg.norm(acceleration[:2]))
