@@ -13,7 +13,7 @@ from groundstation.errors import PreflightError
 from groundstation.runtime.fly import fly
 from sim.crazyflie_peer import SimulatedCrazyflies
 from sim.crazyradio_emulator import emulated_crazyradios
-from tests.peers import ASM, U_MAX, UNTIMED_LINK, hold, start_peer, stop_peer
+from tests.peers import ASM, ROOT, U_MAX, UNTIMED_LINK, hold, peer_process, start_peer, stop_peer
 from tests.runtime.test_fly import sitl_config
 
 RADIOS = ["radio://0/80/2M/E7E7E7E700", "radio://1/80/2M/E7E7E7E701"]
@@ -74,14 +74,15 @@ def test_figure8_over_two_emulated_dongles(tmp_path):
     """The SITL flight through cflib's radio driver (one module per dongle at 250 Hz), parameters included, with
     the shipped link bounds: it flies its plan, or the link failsafe lands or stops it naming the link; nothing else.
 
-    The simulated modules (PyBullet) and the emulated dongles are threads of this process, and their round trip
-    sits near the bounds (12 ms median, 14 ms to land, 20 ms to stop): idle, 2 runs of 2 stopped during the
+    The emulated dongles are threads of this process (the simulated modules run in their own), and the round
+    trip sits near the bounds (12 ms median, 14 ms to land, 20 ms to stop): idle, 2 runs of 2 stopped during the
     take-off at 20-22 ms; with a CPU hog on the other core, 5 of 5. Relaxing the bounds (40 / 80 ms) let the
     assembly flip under the hog, which is why they are the shipped ones here. The attitude loop at the shipped
     4 Hz has little phase left at that round trip: idle, 1 flight in 4 flipped in its landing before the state
     estimator, 2 in 5 with it (the gyros ride the same slow links); at 3 Hz, what a lab would fly on such links,
     5 of 5 landed on the link failsafe."""
-    peer, th = start_peer(SimulatedCrazyflies, 19948, 7484, params=(("supervisor.tmblChckEn", 0),))
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", "19948", "--mocap",
+                        "tcp/127.0.0.1:7484", "--params", str(ROOT / "firmware_params/crazyflie.toml"))
     try:
         cfg = sitl_config(tmp_path, "crazyflie", 19948, "tcp/127.0.0.1:7484")
         text = cfg.read_text().replace('"udp://127.0.0.1:19948", "udp://127.0.0.1:19949"',
@@ -103,4 +104,5 @@ def test_figure8_over_two_emulated_dongles(tmp_path):
         else:
             assert res.phase in ("done", "emergency") and res.reason.startswith("link degraded"), res.reason
     finally:
-        stop_peer(peer, th)
+        peer.terminate()
+        peer.wait(10)

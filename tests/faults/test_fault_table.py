@@ -25,7 +25,7 @@ from groundstation.errors import PreflightError
 from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
 from tests.faults.table import Fault, fault, rows
-from tests.peers import ROOT, peer_process
+from tests.peers import ROOT, peer_process, world_priority
 from tests.runtime.test_fly import config_with, read_log, sitl_config
 
 PEER_PORT, RELAY_PORT = 19900, 19910
@@ -289,7 +289,8 @@ def f_full_disk(cli, tmp_path):
 def _relayed(tmp_path, **faults):
     args = [f"--{k.replace('_', '-')}={v}" for k, v in faults.items()]
     procs = [subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(RELAY_PORT), "--target",
-                               str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL)]
+                               str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL,
+                              preexec_fn=world_priority)]
     procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
                               "--mocap", "tcp/127.0.0.1:7481", "--params",
                               str(ROOT / "firmware_params/crazyflie.toml")))

@@ -22,7 +22,7 @@ from groundstation.replay.analysis import analyse
 from groundstation.replay.export import export_csv
 from groundstation.runtime.fly import fly
 from groundstation.runtime.metrics import FlightFigures
-from tests.peers import ROOT, start_peer, stop_peer
+from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import config_with, sitl_config
 
 FIGURES = [f.name for f in fields(FlightFigures)]
@@ -203,15 +203,18 @@ def test_sigkill_of_a_flight_and_its_writer_then_replay(tmp_path):
 
 
 def test_a_hardware_backend_flight_replays_with_battery_and_link(tmp_path):
-    peer, th = start_peer(__import__("sim.crazyflie_peer").crazyflie_peer.SimulatedCrazyflies, 19930, 7487,
-                          params=(("supervisor.tmblChckEn", 0),))
+    # The modules in a process of their own, as an operator runs them: as a thread of this one they competed with
+    # the flight loop for the interpreter and their poses and states came late.
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", "19930", "--mocap",
+                        "tcp/127.0.0.1:7487", "--params", str(ROOT / "firmware_params/crazyflie.toml"))
     try:
         cfg = sitl_config(tmp_path, "crazyflie", 19930, "tcp/127.0.0.1:7487")
         log = tmp_path / "cf.mcap"
         res = fly(cfg, duration=3.0, log_path=log)
         assert res.phase == "done"
     finally:
-        stop_peer(peer, th)
+        peer.terminate()
+        peer.wait(10)
     r = analyse(log)
     for key in FIGURES:
         assert same(getattr(r.metrics, key), getattr(res.metrics, key)), key
