@@ -14,6 +14,7 @@ with ``realtime=True`` it is paced to the wall clock.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -65,6 +66,10 @@ class SimConfig:
     seed: int = 0
 
 
+GYRO_FULL_SCALE = math.radians(2000.0)
+"""A Crazyflie's BMI088 gyro range, rad/s (what a failed one reads stuck at)."""
+
+
 class PyBulletBackend(BackendBase):
     """Physics simulation of one assembly behind the Backend protocol."""
 
@@ -96,6 +101,8 @@ class PyBulletBackend(BackendBase):
         """Callables ``(t, true_state)`` run after every physics step (e.g. a virtual mocap)."""
         self.link_ok = True
         """Set False to inject a link loss (the flight must stop the motors)."""
+        self.failed_gyro: int | None = None
+        """Set to a module's index to inject a failed IMU: its gyro reads full scale about the module's x axis."""
         self._tie: int | None = None
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -151,8 +158,12 @@ class PyBulletBackend(BackendBase):
     def telemetry(self) -> Telemetry:
         gyro = self._delayed(self.config.gyro_delay).omega + self._gyro_bias + self._rng.normal(
             0.0, self.config.gyro_noise, 3)
+        rates = np.tile(gyro, (self.assembly.n, 1))  # one rigid body: every module measures its rate
+        if self.failed_gyro is not None:
+            rates[self.failed_gyro] = self.assembly.module_rotations[self.failed_gyro] @ (GYRO_FULL_SCALE, 0.0, 0.0)
+            gyro = rates.mean(axis=0)
         return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
-                         gyro=gyro)
+                         gyro=gyro, module_gyros=rates)
 
     def disarm(self) -> None:
         """Zero command, disarmed: the rotors spin down through their lag."""

@@ -71,6 +71,7 @@ class SimulatedWorld:
 
         def advance(t: float) -> None:
             self.backend.link_ok = not self.faults.link_lost
+            self.backend.failed_gyro = self.faults.gyro_failed
             if self.faults.tied_down:
                 self.backend.tie_down()
             if on_period is not None:

@@ -36,8 +36,11 @@ class Telemetry:
     battery_v: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Per-module battery voltage, V (empty when unknown)."""
     gyro: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
-    """Body angular rate from the modules' IMUs, rad/s, body frame (empty when not streamed). Mocap gives the
-    pose; differentiating it for the rate is too late and too noisy for the attitude loop."""
+    """Body angular rate from the modules' IMUs (their mean), rad/s, body frame (empty when not streamed). Mocap
+    gives the pose; differentiating it for the rate is too late and too noisy for the attitude loop."""
+    module_gyros: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    """(n, 3) each module's gyro rotated into the body frame, rad/s (a rigid body: all alike up to noise and their
+    delays; empty when not streamed)."""
     link_latency_s: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Per-module round trip of a command, s (median over a recent window; NaN until measured; empty when the
     backend does not measure it)."""
@@ -66,10 +69,10 @@ def applied_command(u, size: int, armed: bool, u_max: float) -> np.ndarray:
     return bounded_command(u, u_max) if armed else np.zeros(size)
 
 
-def body_rate(module_rotations: np.ndarray, module_gyros: np.ndarray) -> np.ndarray:
-    """The body rate (rad/s, body frame) from the modules' gyros, each in its own frame (rigidly joined modules all
-    measure the same rate): each rotated into the body frame, then averaged."""
-    return np.mean(np.einsum("nij,nj->ni", module_rotations, module_gyros), axis=0)
+def body_rates(module_rotations: np.ndarray, module_gyros: np.ndarray) -> np.ndarray:
+    """(n, 3) the modules' gyros, each in its own frame, rotated into the body frame (rad/s): rigidly joined
+    modules all measure the body rate (:attr:`Telemetry.gyro` is their mean)."""
+    return np.einsum("nij,nj->ni", module_rotations, module_gyros)
 
 
 @runtime_checkable

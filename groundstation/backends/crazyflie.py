@@ -54,7 +54,7 @@ from cflib.crtp.crtpstack import CRTPPacket
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.motor_map import REQUIRES_ARMING
 from groundstation.backends import crtp_wire as wire
-from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
+from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rates
 from groundstation.backends.link_lock import LinkLocks
 from groundstation.errors import ArmingError, LinkError
 
@@ -524,13 +524,14 @@ class CrazyflieBackend(BackendBase):
         counted = [i for i in range(len(self._modules)) if i not in self._isolated]
         thrust = self._map.thrust(self._counts, self._battery)
         quality = self.link_quality()
+        rates = body_rates(self._rotations, self._gyro)
         faults = tuple(m.fault or ("" if ok else f"sends no state ({_age_text(now - m.heard)}): link lost or the "
                                                  f"module is off")
                        for m, ok in zip(self._modules, fresh, strict=True))
         return Telemetry(stamp=float(heard.max()) if heard.size and np.isfinite(heard).any() else 0.0,
                          link_ok=bool(counted) and bool(np.all(fresh[counted])),
                          motors=(thrust / self.module.c_f).reshape(-1), battery_v=self._battery.copy(),
-                         gyro=body_rate(self._rotations, self._gyro), link_latency_s=quality.latency_s,
+                         gyro=rates.mean(axis=0), module_gyros=rates, link_latency_s=quality.latency_s,
                          link_loss=quality.loss, module_faults=faults)
 
     def disarm(self) -> None:

@@ -33,7 +33,7 @@ import numpy as np
 from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rate
+from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rates
 from groundstation.backends.link_lock import LinkLocks
 from groundstation.errors import ArmingError, LinkError
 
@@ -213,11 +213,11 @@ class MavlinkBackend(BackendBase):
         fresh = all(now - m.heard <= self.settings.link_timeout for m in self._modules)
         # A module that disarmed itself (offboard loss, a failsafe) no longer flies: the flight must stop.
         holding = not self._armed or all(m.armed for m in self._modules)
-        gyro = body_rate(self._rotations, self._gyro)
+        rates = body_rates(self._rotations, self._gyro)
         heard = max((m.heard for m in self._modules), default=-np.inf)
         return Telemetry(stamp=float(heard) if np.isfinite(heard) else 0.0,
                          link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
-                         battery_v=self._battery.copy(), gyro=gyro)
+                         battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates)
 
     def disarm(self) -> None:
         """End a flight normally: zero controls and a plain disarm (no termination: the modules can fly again)."""

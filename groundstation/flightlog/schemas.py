@@ -70,7 +70,9 @@ CONTROL = _obj("one control period", {
         "innovation_attitude_deg": _vec(3, "newest pose's attitude relative to the estimate, body rotation "
                                            "vector, deg"),
         "fused": {"type": "integer", "description": "poses fused so far"},
-        "rejected": {"type": "integer", "description": "poses the innovation gates rejected so far"}}),
+        "rejected": {"type": "integer", "description": "poses the innovation gates rejected so far"},
+        "late": {"type": "integer", "description": "poses captured before the oldest estimate kept, dropped unused "
+                                                  "so far"}}),
     "loop": _obj("timing of the previous period", {
         "start_error_s": {"type": "number"}, "compute_s": {"type": "number"}, "overruns": {"type": "integer"}}),
 }, required=("t", "phase", "motors"))

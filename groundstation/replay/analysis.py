@@ -206,6 +206,9 @@ class ReplayFigures(FlightFigures):
     """Largest lost share of commands per module."""
     estimator_rejected: int
     """Poses the estimator's innovation gates rejected (the last count logged; 0 for logs before it)."""
+    estimator_late: int
+    """Poses that reached the estimator too late to use (captured before the history it keeps; the last count
+    logged; 0 for logs before it)."""
     position_sigma_max_m: float
     """Largest position std the estimator reported (blind flight shows here), m (NaN: not logged)."""
     innovation_position_p95_mm: float
@@ -219,19 +222,20 @@ class _Estimates:
     """The estimator's figures from the control records."""
 
     rejected: int = 0
+    late: int = 0
     sigma_max: float = -math.inf
     position: Decimated = field(default_factory=Decimated)
     attitude: Decimated = field(default_factory=Decimated)
 
     def add(self, e: dict) -> None:
-        self.rejected = e["rejected"]
+        self.rejected, self.late = e["rejected"], e.get("late", 0)
         self.sigma_max = max(self.sigma_max, e["position_sigma_m"])
         self.position.add(math.hypot(*e["innovation_position_m"]) * 1e3)
         self.attitude.add(math.hypot(*e["innovation_attitude_deg"]))
 
     def result(self) -> dict:
         p95 = lambda d: float(np.percentile(d.rows, 95)) if d.rows else math.nan  # noqa: E731
-        return {"estimator_rejected": self.rejected,
+        return {"estimator_rejected": self.rejected, "estimator_late": self.late,
                 "position_sigma_max_m": self.sigma_max if self.sigma_max > -math.inf else math.nan,
                 "innovation_position_p95_mm": p95(self.position), "innovation_attitude_p95_deg": p95(self.attitude)}
 

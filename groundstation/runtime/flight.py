@@ -42,6 +42,7 @@ from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import FlightPlan, Landing, roll_pitch_yaw
 from groundstation.errors import ArmingError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
+from groundstation.estimation.gyro_check import GyroAgreement
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.loop_activity import LoopActivity
 from groundstation.runtime.loop import (
@@ -284,6 +285,8 @@ class Flight:
         self.estimator = estimator or RigidBodyFilter(EstimatorSettings(), self.model.mass)
         """The flight's only source of state (``estimator``: one that has already followed the poses, in preflight;
         by default a new one with the default settings)."""
+        self.gyros = GyroAgreement()
+        """The modules' gyros judged against each other (a failed IMU lands the flight)."""
         self.policy = policy or FailsafePolicy()
         self.log = log
         self.requests = requests or Requests()
@@ -342,7 +345,10 @@ class Flight:
         measurement) and the age of the newest measurement fused, s."""
         est = self.estimator
         now = self.pose.now()
-        est.predict(now, telemetry.gyro if telemetry.gyro.size == 3 else None)
+        gyro = telemetry.gyro if telemetry.gyro.size == 3 else None
+        if gyro is not None and len(telemetry.module_gyros) > 1:
+            gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, est.pose_rate())
+        est.predict(now, gyro)
         for m in self.pose.measurements():
             est.correct(m)
         return est.state(), est.age(now)
@@ -433,6 +439,8 @@ class Flight:
                 return False
             if self.phase.airborne:  # the estimator's fault: every pose rejected, so landing on the estimate
                 self._begin_landing(t, state, why, blind=bool(est.fault()))
+        if self.gyros.fault and self.phase.airborne and state is not None:
+            self._begin_landing(t, state, f"gyro fault: {self.gyros.fault}")
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
             integrity = self.integrity()
@@ -594,7 +602,7 @@ class Flight:
                                       "gyro_bias_radps": e.gyro_bias, "disturbance_mps2": e.disturbance,
                                       "innovation_position_m": est.innovation_position,
                                       "innovation_attitude_deg": np.degrees(est.innovation_attitude),
-                                      "fused": est.fused, "rejected": est.rejected}
+                                      "fused": est.fused, "rejected": est.rejected, "late": est.late}
             if truth is not None:
                 record["truth"] = {"position": truth.position, "rotation": truth.rotation}
             self.log.record("/control", record, tw)

@@ -91,8 +91,8 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_paused``, ``link_lost`` and ``tied_down`` act on the in-process simulator only; with simulated
-    Crazyflie or PX4 modules, stop the peer process to lose the link."""
+    ``mocap_paused``, ``link_lost``, ``gyro_failed`` and ``tied_down`` act on the in-process simulator only; with
+    simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
@@ -102,6 +102,8 @@ class Faults:
     """The pose source hands the estimator NaN positions."""
     link_lost: bool = False
     """The backend reports its link lost."""
+    gyro_failed: int | None = None
+    """This module's gyro reads full scale (2000 deg/s) about its x axis (a failed IMU)."""
     tied_down: bool = False
     """The assembly is fixed where it is (a forgotten tie-down, a snagged cable): the rotors spin, it stays."""
     pose_stamp: float | None = None

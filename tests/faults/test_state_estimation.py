@@ -36,6 +36,18 @@ def _truth(log) -> list[tuple[float, str, float, float]]:
             for _, m in motors if "truth" in m]
 
 
+def _injected(faults: Faults, name: str, value, at: float = 4.5):
+    """An ``on_period`` hook that sets ``faults.name = value`` in the first period from ``at`` s (in tracking), and
+    the list that then holds that period's time."""
+    when: list[float] = []
+
+    def on_period(t):
+        if t >= at and not when:
+            when.append(t)
+            setattr(faults, name, value)
+    return on_period, when
+
+
 @contextlib.contextmanager
 def _cuttable(tmp_path):
     """Simulated Crazyflie modules whose mocap reaches the ground station through a TCP relay that a SIGUSR1
@@ -101,13 +113,7 @@ def f_mocap_blackout_1s(cli, tmp_path):
        "rejected within 0.1 s as a frozen stream (a mocap fault, named), a blind landing on the estimate, exit 1")
 def f_mocap_frozen_pose(cli, tmp_path):
     faults = Faults()
-    frozen = []
-
-    def on_period(t):
-        if t >= 4.5 and not frozen:
-            frozen.append(t)
-            faults.mocap_frozen = True
-
+    on_period, frozen = _injected(faults, "mocap_frozen", True)
     log = tmp_path / "frozen.mcap"
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536"), duration=4.0, log_path=log, faults=faults,
               on_period=on_period)
@@ -117,6 +123,29 @@ def f_mocap_frozen_pose(cli, tmp_path):
     assert named and named[0] - frozen[0] <= 0.1, (named, frozen)
     truth = _truth(log)
     assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+
+
+@fault("a module's gyro fails in tracking: reads 2000 deg/s, full scale (dry run)",
+       "left out of the body rate in the period it shows (the mocap's rate says which of the two), a landing on the "
+       "other's, named; tilt below 15 deg, exit 1")
+def f_gyro_failed(cli, tmp_path):
+    faults = Faults()
+    on_period, failed = _injected(faults, "gyro_failed", 1)
+    log = tmp_path / "gyro.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537"), duration=4.0, log_path=log, faults=faults,
+              on_period=on_period)
+    assert res.phase == "done" and res.reason.startswith("gyro fault: module 1's gyro disagrees with the other's")
+    assert "left out of the body rate" in res.reason
+    named = [t for t, _, text in res.events if "landing: gyro fault" in text]
+    assert named and named[0] - failed[0] <= 0.01, (named, failed)  # the period it shows, or the next
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+    _, _, _, motors = read_log(log)
+    rates = [(m["t"] - failed[0], np.degrees(np.linalg.norm(m["state"]["omega"]))) for _, m in motors
+             if m["t"] >= failed[0] and "state" in m]
+    # the failed reading never reached the estimate (half of it would be 1000 deg/s): as calm as tracking was just
+    # after it, and the landing (its touchdown) within 200 deg/s
+    assert max(r for dt, r in rates if dt < 0.2) < 60.0 and max(r for _, r in rates) < 200.0
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

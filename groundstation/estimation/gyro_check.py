@@ -1,0 +1,100 @@
+"""The modules' gyros checked against each other: one rigid body has one rate, so a module whose gyro disagrees
+with the others' is a failed or loose IMU (or a module mounted where the assembly file does not say).
+
+Each module's reading, rotated into the body frame, is compared with the mean of the others'. Readings differ by
+noise and by their delays (a Crazyflie's state packet every 10 ms: at 20 rad/s^2 of angular acceleration that is
+0.2 rad/s), so the tolerance is a floor plus a share of the rate. What exceeds it is integrated: the fault comes
+when the excess would have turned the attitude estimate by ``angle_budget``. A gyro stuck at full scale
+(2000 deg/s) is a fault in the period it first shows, before the estimator integrates it; a gyro stuck at its
+reading while the body turns at 60 deg/s, after ~0.1 s. The fault latches, and the module is left out of the body
+rate from then on: with three modules or more the one farthest from the others, with two the one farther from
+the rate the mocap poses show (:meth:`RigidBodyFilter.pose_rate`; without poses, neither).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class GyroAgreementSettings:
+    floor: float = 0.5
+    """Disagreement always tolerated, rad/s (29 deg/s: noise, and the modules' readings up to 25 ms apart at
+    20 rad/s^2)."""
+    relative: float = 0.25
+    """...plus this share of the body rate's magnitude (scale errors, delays at high rates)."""
+    angle_budget: float = math.radians(1.5)
+    """Disagreement beyond the tolerance, integrated over time, that is a fault, rad (the attitude error it would
+    have caused; a disagreement back within the tolerance starts the count again)."""
+
+
+class GyroAgreement:
+    """Feed :meth:`rate` every period with the modules' body-frame gyros; :attr:`fault` names a latched
+    disagreement ("" while there is none)."""
+
+    def __init__(self, settings: GyroAgreementSettings | None = None) -> None:
+        self.settings = settings or GyroAgreementSettings()
+        self.fault = ""
+        self.excluded: int | None = None
+        """The module left out of the body rate after a fault."""
+        self.worst = 0.0
+        """The largest disagreement seen, rad/s."""
+        self._t: float | None = None
+        self._since: float | None = None
+        self._excess = 0.0
+
+    def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
+             referee: np.ndarray | None = None) -> np.ndarray:
+        """The body rate to fly on at ``t`` (s): ``mean`` (the backend's, of all modules) unless a module was
+        left out; judges ``module_gyros`` ((n, 3), rad/s, body frame) on the way. ``referee``: the body rate
+        from the mocap poses (rad/s), which picks the wrong one of two."""
+        n = len(module_gyros)
+        if n < 2:
+            return mean
+        if not self.fault:
+            self._judge(t, module_gyros, referee)
+        if self.excluded is None:
+            return mean
+        return np.delete(module_gyros, self.excluded, axis=0).mean(axis=0)
+
+    def _judge(self, t: float, rates: np.ndarray, referee: np.ndarray | None) -> None:
+        dt = 0.0 if self._t is None else max(t - self._t, 0.0)
+        self._t = t
+        n = len(rates)
+        broken = ~np.isfinite(rates).all(axis=1)
+        if broken.any():  # a reading that is not a number agrees with nothing
+            i, off_i = int(np.argmax(broken)), math.inf
+            body = rates[~broken].mean(axis=0) if (~broken).any() else np.zeros(3)
+        else:
+            total = rates.sum(axis=0)
+            others = (total - rates) / (n - 1)  # each module's counterpart: the mean of the others
+            off = np.sqrt(((rates - others) ** 2).sum(axis=1))
+            i = int(np.argmax(off))
+            off_i, body = float(off[i]), total / n
+            if n == 2 and referee is not None:
+                to_referee = np.sqrt(((rates - referee) ** 2).sum(axis=1))
+                i = int(np.argmax(to_referee))
+        tolerance = self.settings.floor + self.settings.relative * math.sqrt(float(body @ body))
+        self.worst = max(self.worst, off_i)
+        if off_i <= tolerance:
+            self._since, self._excess = None, 0.0
+            return
+        if self._since is None:
+            self._since = t
+        self._excess += (off_i - tolerance) * dt if math.isfinite(off_i) else math.inf
+        if self._excess < self.settings.angle_budget:
+            return
+        size = "not a number" if not math.isfinite(off_i) else f"{math.degrees(off_i):.0f} deg/s"
+        lasted = f"{(t - self._since) * 1e3:.0f} ms"
+        if n == 2 and referee is None and not broken.any():
+            self.fault = (f"the gyros of modules 0 and 1 disagree by {size} for {lasted} (tolerated "
+                          f"{math.degrees(tolerance):.0f}): a failed or loose IMU; no poses to tell which")
+            return
+        self.excluded = i
+        whose = "other's" if n == 2 else "others'"
+        self.fault = (f"module {i}'s gyro disagrees with the {whose} by {size} for "
+                      f"{lasted} (tolerated {math.degrees(tolerance):.0f}): a failed or loose IMU, left out of "
+                      f"the body rate")

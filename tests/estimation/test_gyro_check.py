@@ -1,0 +1,85 @@
+import math
+
+import numpy as np
+import pytest
+
+from groundstation.estimation.gyro_check import GyroAgreement
+
+DT = 0.004
+
+
+def _run(agreement, rates_at, seconds=0.3, referee=None):
+    """Feed ``rates_at(t)`` ((n, 3)) every 4 ms for ``seconds``; the body rates returned."""
+    out = []
+    for k in range(round(seconds / DT)):
+        t = k * DT
+        rates = rates_at(t)
+        out.append(agreement.rate(t, rates, rates.mean(axis=0), None if referee is None else referee(t)))
+    return np.array(out)
+
+
+def test_noise_and_delays_between_modules_are_no_fault():
+    """Two modules turning at up to 5 rad/s (a V's pitch swinging at 4 Hz), one reading 10 ms behind the other,
+    with 0.01 rad/s of noise each."""
+    rng = np.random.default_rng(1)
+    swing = lambda t: np.array([0.0, 5.0 * math.sin(2 * math.pi * 4 * t), 0.3])  # noqa: E731
+    agreement = GyroAgreement()
+    _run(agreement, lambda t: np.array([swing(t), swing(t - 0.01)]) + rng.normal(0, 0.01, (2, 3)), 2.0)
+    assert agreement.fault == "" and agreement.excluded is None
+    # 5 rad/s x 2 pi 4 Hz x 10 ms = 1.26 rad/s apart at most (plus noise), under the 0.5 + 0.25 x 5 tolerated
+    assert agreement.worst == pytest.approx(5 * 2 * math.pi * 4 * 0.01, rel=0.05)
+
+
+def test_a_gyro_stuck_at_full_scale_is_left_out_in_the_period_it_shows():
+    """Module 1 reads 2000 deg/s about x from 0.1 s: the disagreement beyond the tolerance, over one period, is
+    far more than the 1.5 deg budget; the poses' rate (still) picks module 1, and the body rate is module 0's."""
+    agreement = GyroAgreement()
+    good = np.array([0.0, 0.3, 0.0])
+    full = lambda t: np.array([good, good if t < 0.1 else np.radians([2000.0, 0.0, 0.0])])  # noqa: E731
+    rates = _run(agreement, full, referee=lambda t: good + 0.05)
+    k = round(0.1 / DT)  # the first period with the failed reading
+    assert agreement.excluded == 1 and agreement.fault.startswith("module 1's gyro disagrees with the other's by "
+                                                                  "2000 deg/s for 0 ms")
+    np.testing.assert_allclose(rates[k:], np.tile(good, (len(rates) - k, 1)))  # never flown on
+
+
+def test_a_gyro_stuck_while_the_body_turns_is_named_once_its_error_adds_up():
+    """Module 1 holds 0 from 0.1 s while the body turns at 60 deg/s: 31 deg/s over the tolerance, 1.5 deg of
+    attitude after ~50 ms."""
+    agreement = GyroAgreement()
+    turn = np.radians([0.0, 60.0, 0.0])
+    held = lambda t: np.array([turn, turn if t < 0.1 else np.zeros(3)])  # noqa: E731
+    rates = _run(agreement, held, referee=lambda t: turn)
+    assert agreement.excluded == 1
+    lasted = float(agreement.fault.split(" for ")[1].split(" ms")[0])
+    assert 40 <= lasted <= 60, agreement.fault
+    np.testing.assert_allclose(rates[-1], turn)
+
+
+def test_two_that_disagree_without_poses_are_named_and_both_stay_in():
+    agreement = GyroAgreement()
+    turn = np.radians([0.0, 60.0, 0.0])
+    held = lambda t: np.array([turn, turn if t < 0.1 else np.zeros(3)])  # noqa: E731
+    rates = _run(agreement, held)
+    assert agreement.fault.startswith("the gyros of modules 0 and 1 disagree by 60 deg/s for ")
+    assert agreement.fault.endswith("no poses to tell which") and agreement.excluded is None
+    np.testing.assert_allclose(rates[-1], turn / 2)  # the mean: neither can be told wrong
+
+
+@pytest.mark.parametrize("bad", [np.array([0.0, 0.0, 0.0]), np.array([np.nan, 0.0, 0.0])])
+def test_of_three_the_odd_one_is_left_out(bad):
+    agreement = GyroAgreement()
+    good = np.array([0.2, -1.0, 0.1])
+    three = lambda t: np.array([good, good, good if t < 0.1 else bad])  # noqa: E731
+    rates = _run(agreement, three)
+    assert agreement.excluded == 2 and agreement.fault.startswith("module 2's gyro disagrees with the others' by ")
+    assert ("not a number" in agreement.fault) == bool(np.isnan(bad).any())
+    np.testing.assert_allclose(rates[-1], good)  # the body rate from the other two
+
+
+def test_a_short_glitch_is_forgotten():
+    """0.64 rad/s beyond the tolerance for 12 ms: 0.44 deg, under the budget, then agreement again."""
+    agreement = GyroAgreement()
+    glitch = lambda t: np.array([[0.0, 0.0, 0.0], [0.0, 2.0 if 0.1 <= t < 0.112 else 0.0, 0.0]])  # noqa: E731
+    _run(agreement, glitch)
+    assert agreement.fault == "" and math.degrees(agreement.worst) == pytest.approx(114.6, abs=0.1)
