@@ -306,12 +306,13 @@ class RigidBodyFilter:
         while len(poses) > 2 and poses[1].t <= m.t - POSE_RATE_WINDOW_S:
             poses.popleft()
 
-    def pose_rate(self) -> np.ndarray | None:
+    def pose_rate(self, now: float) -> np.ndarray | None:
         """The body rate the fused poses alone show (rad/s, body frame): the rotation between the oldest and the
-        newest of the last ``POSE_RATE_WINDOW_S`` over their time apart (None without two). Noisy (0.2 deg of
-        mocap noise: ~6 deg/s) and late, but independent of the gyros: the referee when two of them disagree."""
+        newest of the last ``POSE_RATE_WINDOW_S`` over their time apart (None without two, or when the newest is
+        older than twice that at ``now``, s: through an outage it says nothing). Noisy (0.2 deg of mocap noise:
+        ~6 deg/s) and late, but independent of the gyros: the referee when two of them disagree."""
         poses = self._fused_poses
-        if len(poses) < 2 or poses[-1].t <= poses[0].t:
+        if len(poses) < 2 or poses[-1].t <= poses[0].t or poses[-1].t < now - 2.0 * POSE_RATE_WINDOW_S:
             return None
         return matrix_to_rotvec(poses[0].rotation.T @ poses[-1].rotation) / (poses[-1].t - poses[0].t)
 

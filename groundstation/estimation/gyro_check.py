@@ -2,18 +2,22 @@
 with the others' is a failed or loose IMU (or a module mounted where the assembly file does not say).
 
 Each module's reading, rotated into the body frame, is compared with the mean of the others'. Readings differ by
-noise and by their delays (a Crazyflie's state packet every 10 ms: at 20 rad/s^2 of angular acceleration that is
-0.2 rad/s), so the tolerance is a floor plus a share of the rate. What exceeds it is integrated: the fault comes
-when the excess would have turned the attitude estimate by ``angle_budget``. A gyro stuck at full scale
-(2000 deg/s) is a fault in the period it first shows, before the estimator integrates it; a gyro stuck at its
-reading while the body turns at 60 deg/s, after ~0.1 s. The fault latches, and the module is left out of the body
-rate from then on: with three modules or more the one farthest from the others, with two the one farther from
-the rate the mocap poses show (:meth:`RigidBodyFilter.pose_rate`; without poses, neither).
+noise and by their delays (a Crazyflie's state packet every 10 ms, links 12-20 ms apart), so the tolerance is a
+floor, a share of the rate, and what the rate itself changed by over the last ``delay_spread`` (a reading that
+late can be that far off; the smallest change among the modules, since a failing one jumps). What exceeds the
+tolerance is integrated: the fault comes when the excess would have turned the attitude estimate by
+``angle_budget``. A gyro stuck at full scale (2000 deg/s) is a fault in the period it first shows, before the
+estimator integrates it; one stuck at its reading while the body turns at 60 deg/s, after ~0.1 s. The fault
+latches, and the module is left out of the body rate from then on: with three modules or more the one farthest
+from the others, with two the one farther from the rate the mocap poses show
+(:meth:`RigidBodyFilter.pose_rate`; without poses, neither). Readings that are not numbers never enter the body
+rate.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,13 +26,16 @@ import numpy as np
 @dataclass(frozen=True)
 class GyroAgreementSettings:
     floor: float = 0.5
-    """Disagreement always tolerated, rad/s (29 deg/s: noise, and the modules' readings up to 25 ms apart at
-    20 rad/s^2)."""
+    """Disagreement always tolerated, rad/s (29 deg/s: noise and quantisation)."""
     relative: float = 0.25
-    """...plus this share of the body rate's magnitude (scale errors, delays at high rates)."""
+    """...plus this share of the body rate's magnitude (scale errors)..."""
+    delay_spread: float = 0.025
+    """...plus the rate's change over this long, s: how far apart in time two modules' readings may be."""
     angle_budget: float = math.radians(1.5)
     """Disagreement beyond the tolerance, integrated over time, that is a fault, rad (the attitude error it would
     have caused; a disagreement back within the tolerance starts the count again)."""
+    max_step: float = 0.01
+    """Longest time one reading counts for, s (a stalled loop's gap is not a disagreement that lasted)."""
 
 
 class GyroAgreement:
@@ -45,29 +52,36 @@ class GyroAgreement:
         self._t: float | None = None
         self._since: float | None = None
         self._excess = 0.0
+        self._recent: deque[tuple[float, np.ndarray]] = deque()
+        """(t, readings) of the last ``delay_spread``."""
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
              referee: np.ndarray | None = None) -> np.ndarray:
-        """The body rate to fly on at ``t`` (s): ``mean`` (the backend's, of all modules) unless a module was
-        left out; judges ``module_gyros`` ((n, 3), rad/s, body frame) on the way. ``referee``: the body rate
-        from the mocap poses (rad/s), which picks the wrong one of two."""
+        """The body rate to fly on at ``t`` (s): ``mean`` (the backend's, of all modules) unless a module was left
+        out or a reading is not a number; judges ``module_gyros`` ((n, 3), rad/s, body frame) on the way.
+        ``referee``: the body rate from the mocap poses (rad/s), which picks the wrong one of two."""
         n = len(module_gyros)
         if n < 2:
             return mean
         if not self.fault:
             self._judge(t, module_gyros, referee)
-        if self.excluded is None:
+        keep = np.isfinite(module_gyros).all(axis=1)
+        if self.excluded is not None:
+            keep[self.excluded] = False
+        if keep.all():
             return mean
-        return np.delete(module_gyros, self.excluded, axis=0).mean(axis=0)
+        return module_gyros[keep].mean(axis=0) if keep.any() else mean
 
     def _judge(self, t: float, rates: np.ndarray, referee: np.ndarray | None) -> None:
-        dt = 0.0 if self._t is None else max(t - self._t, 0.0)
+        s = self.settings
+        dt = 0.0 if self._t is None else min(max(t - self._t, 0.0), s.max_step)
         self._t = t
         n = len(rates)
         broken = ~np.isfinite(rates).all(axis=1)
         if broken.any():  # a reading that is not a number agrees with nothing
             i, off_i = int(np.argmax(broken)), math.inf
             body = rates[~broken].mean(axis=0) if (~broken).any() else np.zeros(3)
+            change = 0.0
         else:
             total = rates.sum(axis=0)
             others = (total - rates) / (n - 1)  # each module's counterpart: the mean of the others
@@ -75,9 +89,9 @@ class GyroAgreement:
             i = int(np.argmax(off))
             off_i, body = float(off[i]), total / n
             if n == 2 and referee is not None:
-                to_referee = np.sqrt(((rates - referee) ** 2).sum(axis=1))
-                i = int(np.argmax(to_referee))
-        tolerance = self.settings.floor + self.settings.relative * math.sqrt(float(body @ body))
+                i = int(np.argmax(np.sqrt(((rates - referee) ** 2).sum(axis=1))))
+            change = self._change(t, rates)
+        tolerance = s.floor + s.relative * math.sqrt(float(body @ body)) + change
         self.worst = max(self.worst, off_i)
         if off_i <= tolerance:
             self._since, self._excess = None, 0.0
@@ -85,7 +99,7 @@ class GyroAgreement:
         if self._since is None:
             self._since = t
         self._excess += (off_i - tolerance) * dt if math.isfinite(off_i) else math.inf
-        if self._excess < self.settings.angle_budget:
+        if self._excess < s.angle_budget:
             return
         size = "not a number" if not math.isfinite(off_i) else f"{math.degrees(off_i):.0f} deg/s"
         lasted = f"{(t - self._since) * 1e3:.0f} ms"
@@ -95,6 +109,16 @@ class GyroAgreement:
             return
         self.excluded = i
         whose = "other's" if n == 2 else "others'"
-        self.fault = (f"module {i}'s gyro disagrees with the {whose} by {size} for "
-                      f"{lasted} (tolerated {math.degrees(tolerance):.0f}): a failed or loose IMU, left out of "
-                      f"the body rate")
+        self.fault = (f"module {i}'s gyro disagrees with the {whose} by {size} for {lasted} (tolerated "
+                      f"{math.degrees(tolerance):.0f}): a failed or loose IMU, left out of the body rate")
+
+    def _change(self, t: float, rates: np.ndarray) -> float:
+        """The smallest change of a module's reading over the last ``delay_spread``, rad/s."""
+        recent = self._recent
+        recent.append((t, rates.copy()))
+        while len(recent) > 1 and recent[1][0] <= t - self.settings.delay_spread:
+            recent.popleft()
+        oldest = recent[0][1]
+        if oldest.shape != rates.shape:
+            return 0.0
+        return float(np.sqrt(((rates - oldest) ** 2).sum(axis=1)).min())

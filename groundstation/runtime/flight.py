@@ -6,7 +6,8 @@ States and transitions (each logged as an event)::
     preflight --(a module refuses to arm, the operator asks to land or stop before arming)--> aborted
          any airborne state --(operator land, mocap stale or link degraded with policy "land", the assembly
                                not following its reference, a module fault the other modules can fly
-                               through: the faulty ones isolated)--> landing
+                               through: the faulty ones isolated; a module's gyro disagreeing with the
+                               others')--> landing
          any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale or link degraded with
                       "stop", a module fault the others cannot fly through, the position estimate's
                       uncertainty beyond its bound)--> emergency
@@ -306,7 +307,8 @@ class Flight:
         """(flight time s, level, text) of every transition and failsafe."""
         self.periods = 0
         """Control periods flown (the ones that computed a command)."""
-        self._landing: tuple[float, Landing] | None = None
+        self._landing: tuple[float, Landing, bool] | None = None
+        """(start s, reference, blind) of a landing under way."""
         self._t_prev: float | None = None
         self._stall_warn = 0.02
         """A gap between periods beyond this is a stall worth a warning, s (five periods)."""
@@ -347,7 +349,7 @@ class Flight:
         now = self.pose.now()
         gyro = telemetry.gyro if telemetry.gyro.size == 3 else None
         if gyro is not None and len(telemetry.module_gyros) > 1:
-            gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, est.pose_rate())
+            gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, est.pose_rate(now))
         est.predict(now, gyro)
         for m in self.pose.measurements():
             est.correct(m)
@@ -371,17 +373,28 @@ class Flight:
         """Land in the plan's landing time, or, ``blind`` (on the estimate alone), at ``blind_descent_mps``; the
         landing reference goes on from the current one (position, velocity, acceleration: the controller's output
         does not jump) unless the assembly is farther from it than ``max_tracking_error_m``, then from the
-        ``state`` (where and how it moves)."""
-        ref = self.plan(t)
+        ``state`` (where and how it moves). A landing already under way goes on from its own reference (a blind
+        one stays blind)."""
+        if self._landing is not None:
+            t_land, landing, was_blind = self._landing
+            ref, blind = landing(t - t_land), blind or was_blind
+            self._event(t, "warning", f"{why}: the landing goes on")  # no change of phase to log it
+        else:
+            ref = self.plan(t)
         if np.linalg.norm(state.position - ref.position) > self.policy.max_tracking_error_m:
             ref = Setpoint(state.position, state.velocity, np.zeros(3), ref.rotation)
         z = float(self.plan.ground[2]) - (BLIND_LANDING_DEPTH if blind else LANDING_DEPTH)
+        height, sinking = float(ref.position[2]) - z, -float(ref.velocity[2])
         duration = self.plan.landing_s
         if blind:
-            duration = max(0.5, (float(ref.position[2]) - z) / self.policy.blind_descent_mps)
+            duration = max(0.5, height / self.policy.blind_descent_mps)
             self.estimator.set_ground(float(self.plan.ground[2]))
+        if sinking > 0.0 and height > 0.0:
+            # Descending fast near the ground: the quintic to rest would pass below it (and come back up) if it
+            # carried that speed over more than 2.5 x the height.
+            duration = min(duration, max(0.3, 2.5 * height / sinking))
         self._landing = (t, Landing(*(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration)),
-                                    z, duration))
+                                    z, duration), blind)
         self.reason = self.reason or why
         self._set_phase(t, Phase.LANDING, why)
 
@@ -474,7 +487,7 @@ class Flight:
             if self.policy.on_log_failure == "land" and self.phase.airborne:
                 self._begin_landing(t, state, why)
         if self._landing is not None:
-            t_land, landing = self._landing
+            t_land, landing, _ = self._landing
             sp = landing(t - t_land)
             sp = Setpoint(sp.position, sp.velocity, sp.acceleration, _level(self.plan(t).rotation))
             if t - t_land >= landing.duration:
@@ -519,8 +532,7 @@ class Flight:
             self._emergency(t, f"{names}: the other modules cannot hold the assembly")
             return False
         self.model = rest
-        self._landing = None  # land from here, on the rest
-        self._begin_landing(t, state, f"{names}: landing on the other modules")
+        self._begin_landing(t, state, f"{names}: landing on the other modules")  # from here, on the rest
         return True
 
     def _link_degraded(self, telemetry) -> tuple[str, bool]:

@@ -75,12 +75,12 @@ def test_figure8_over_two_emulated_dongles(tmp_path):
     the shipped link bounds: it flies its plan, or the link failsafe lands or stops it naming the link; nothing else.
 
     The emulated dongles are threads of this process (the simulated modules run in their own), and the round
-    trip sits near the bounds (12 ms median, 14 ms to land, 20 ms to stop): idle, 2 runs of 2 stopped during the
-    take-off at 20-22 ms; with a CPU hog on the other core, 5 of 5. Relaxing the bounds (40 / 80 ms) let the
-    assembly flip under the hog, which is why they are the shipped ones here. The attitude loop at the shipped
-    4 Hz has little phase left at that round trip: idle, 1 flight in 4 flipped in its landing before the state
-    estimator, 2 in 5 with it (the gyros ride the same slow links); at 3 Hz, what a lab would fly on such links,
-    5 of 5 landed on the link failsafe."""
+    trip sits near the bounds (12 ms median, 14 ms to land, 20 ms to stop). Relaxing the bounds (40 / 80 ms) let
+    the assembly flip under a CPU hog, which is why they are the shipped ones here. The attitude loop at the
+    shipped 4 Hz has little phase left at that round trip; at 3 Hz, what a lab would fly on such links, it flies or
+    lands on the link failsafe: 2 of 2 idle and 2 of 2 with a CPU hog (2026-12-02, the modules in a process of
+    their own and landings that go on from the reference's motion); with two hogs on this 2-core machine, 1 of 2
+    flipped (so did the code before, as threads)."""
     peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", "19948", "--mocap",
                         "tcp/127.0.0.1:7484", "--params", str(ROOT / "firmware_params/crazyflie.toml"))
     try:

@@ -26,8 +26,28 @@ def test_noise_and_delays_between_modules_are_no_fault():
     agreement = GyroAgreement()
     _run(agreement, lambda t: np.array([swing(t), swing(t - 0.01)]) + rng.normal(0, 0.01, (2, 3)), 2.0)
     assert agreement.fault == "" and agreement.excluded is None
-    # 5 rad/s x 2 pi 4 Hz x 10 ms = 1.26 rad/s apart at most (plus noise), under the 0.5 + 0.25 x 5 tolerated
+    # 5 rad/s x 2 pi 4 Hz x 10 ms = 1.26 rad/s apart at most (plus noise), within the tolerance (0.5 rad/s, a
+    # quarter of the rate and what the rate changed over the last 25 ms)
     assert agreement.worst == pytest.approx(5 * 2 * math.pi * 4 * 0.01, rel=0.05)
+
+
+@pytest.mark.parametrize("lag", [0.015, 0.020, 0.025])
+def test_readings_apart_in_time_are_no_fault(lag):
+    """The same swing (4 Hz, 5 rad/s), one module's readings up to 25 ms behind the other's (Crazyflie links 12-20
+    ms apart): apart by up to 3 rad/s where the rate crosses zero, within what the rate changed over 25 ms."""
+    swing = lambda t: np.array([0.0, 5.0 * math.sin(2 * math.pi * 4 * t), 0.3])  # noqa: E731
+    agreement = GyroAgreement()
+    _run(agreement, lambda t: np.array([swing(t), swing(t - lag)]), 2.0)
+    assert agreement.fault == "" and agreement.worst > 0.9 * 5 * 2 * math.pi * 4 * lag
+
+
+def test_a_stalled_loop_is_not_a_disagreement_that_lasted():
+    """One reading 0.2 rad/s beyond the tolerance, then a 200 ms gap (a loop stall), then agreement: 0.2 rad/s x
+    10 ms at most, not x 200 ms (2.3 deg, a fault)."""
+    agreement = GyroAgreement()
+    for t, second in ((0.0, 0.0), (0.004, 0.8), (0.204, 0.8), (0.208, 0.0)):
+        agreement.rate(t, np.array([[0.0, 0.0, 0.0], [0.0, second, 0.0]]), np.zeros(3))
+    assert agreement.fault == ""
 
 
 def test_a_gyro_stuck_at_full_scale_is_left_out_in_the_period_it_shows():

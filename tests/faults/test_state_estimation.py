@@ -141,11 +141,13 @@ def f_gyro_failed(cli, tmp_path):
     truth = _truth(log)
     assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
     _, _, _, motors = read_log(log)
-    rates = [(m["t"] - failed[0], np.degrees(np.linalg.norm(m["state"]["omega"]))) for _, m in motors
-             if m["t"] >= failed[0] and "state" in m]
-    # the failed reading never reached the estimate (half of it would be 1000 deg/s): as calm as tracking was just
-    # after it, and the landing (its touchdown) within 200 deg/s
-    assert max(r for dt, r in rates if dt < 0.2) < 60.0 and max(r for _, r in rates) < 200.0
+    after = [m for _, m in motors if "state" in m and 0.0 <= m["t"] - failed[0] < 0.3]
+    # the failed reading never reached the estimate: one period of half of it (1000 deg/s) would have turned the
+    # estimated attitude 4 deg away from the physics'; it stays within 1 deg, the body rate within 200 deg/s
+    off = [np.degrees(2 * np.arccos(min(1.0, abs(float(np.dot(m["state"]["orientation"],
+                                                                 m["truth"]["orientation"])))))) for m in after]
+    assert after and max(off) < 1.0, max(off)
+    assert max(np.degrees(np.linalg.norm(m["state"]["omega"])) for m in after) < 200.0
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

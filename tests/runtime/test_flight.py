@@ -136,6 +136,28 @@ def test_a_module_fault_lands_on_the_rest_or_stops(assembly, k, phase, reason):
             assert np.all(flight.model.allocation[:, 4 * k:4 * k + 4] == 0.0)
 
 
+def test_a_module_fault_in_a_landing_goes_on_from_the_landing():
+    """An operator landing, then 1 s into it a module of a 30-module assembly stops: the landing goes on, on the
+    other modules, from where its reference was (it used to start again from the flight plan, 0.5 m up at the
+    hover point)."""
+    asm, _ = load_assembly(ROOT / "configs/assemblies/random10_seed0_n30.json")
+    with ModuleStops(asm, 7, 0.0) as be:
+        be._asm_n = asm.n
+        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
+        t_land = plan.phases[2][1] + 1.0  # hovering
+        be._t_fault = t_land + 1.0
+        flight = Flight(asm, plan, ready(be), PhysicsPoseSource(be), record=True)
+        flight.before_period = lambda t: flight.requests.land.set() if t >= t_land else None
+        flight.run(SimClock(be), 250.0)
+    assert flight.phase == "done" and flight.reason == "operator land"
+    assert [text for _, _, text in flight.events if "module 7" in text] == [
+        "module 7 disarmed by its supervisor: landing on the other modules: the landing goes on"]
+    ref = np.array(flight.recording.position_ref)
+    steps = np.linalg.norm(np.diff(ref, axis=0), axis=1)
+    assert steps.max() < 0.01, steps.max()  # per 4 ms period: no jump when the fault came
+    assert ref[-1][2] < plan.ground[2]  # and it went on down to the ground
+
+
 class Silenced(PhysicsPoseSource):
     """The simulated mocap, silent from ``t_quiet`` on (a tracker that lost the body)."""
 

@@ -34,10 +34,10 @@ def read_log(path):
 
 
 def quick_phases(text: str) -> str:
-    """A flight config whose take-off and landing take 2 s instead of the shipped 3 s and whose settle and hold
+    """A flight config whose take-off and landing take 1.5 s instead of the shipped 3 s and whose settle and hold
     take 0.5 s instead of 1.5 s (unless it sets them): the suite flies ~100 times, and what the tests look at
-    happens in tracking or at its end. Tracking starts at 2.5 s."""
-    for key, value in (("takeoff_s", 2.0), ("landing_s", 2.0), ("settle_s", 0.5)):
+    happens in tracking or at its end. Tracking starts at 2 s."""
+    for key, value in (("takeoff_s", 1.5), ("landing_s", 1.5), ("settle_s", 0.5)):
         if key not in text:
             text = text.replace("duration = 16.0\n", f"duration = 16.0\n{key} = {value}\n")
     return text
