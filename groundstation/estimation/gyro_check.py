@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,10 +57,11 @@ class GyroAgreement:
         """(t, readings) of the last ``delay_spread``."""
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
-             referee: np.ndarray | None = None) -> np.ndarray:
+             referee: Callable[[], np.ndarray | None] | None = None) -> np.ndarray:
         """The body rate to fly on at ``t`` (s): ``mean`` (the backend's, of all modules) unless a module was left
         out or a reading is not a number; judges ``module_gyros`` ((n, 3), rad/s, body frame) on the way.
-        ``referee``: the body rate from the mocap poses (rad/s), which picks the wrong one of two."""
+        ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the wrong one of two;
+        asked only then (not on the control loop's every period)."""
         n = len(module_gyros)
         if n < 2:
             return mean
@@ -72,7 +74,7 @@ class GyroAgreement:
             return mean
         return module_gyros[keep].mean(axis=0) if keep.any() else mean
 
-    def _judge(self, t: float, rates: np.ndarray, referee: np.ndarray | None) -> None:
+    def _judge(self, t: float, rates: np.ndarray, referee: Callable[[], np.ndarray | None] | None) -> None:
         s = self.settings
         dt = 0.0 if self._t is None else min(max(t - self._t, 0.0), s.max_step)
         self._t = t
@@ -88,8 +90,6 @@ class GyroAgreement:
             off = np.sqrt(((rates - others) ** 2).sum(axis=1))
             i = int(np.argmax(off))
             off_i, body = float(off[i]), total / n
-            if n == 2 and referee is not None:
-                i = int(np.argmax(np.sqrt(((rates - referee) ** 2).sum(axis=1))))
             change = self._change(t, rates)
         tolerance = s.floor + s.relative * math.sqrt(float(body @ body)) + change
         self.worst = max(self.worst, off_i)
@@ -103,7 +103,10 @@ class GyroAgreement:
             return
         size = "not a number" if not math.isfinite(off_i) else f"{math.degrees(off_i):.0f} deg/s"
         lasted = f"{(t - self._since) * 1e3:.0f} ms"
-        if n == 2 and referee is None and not broken.any():
+        poses = referee() if n == 2 and referee is not None and not broken.any() else None
+        if poses is not None:
+            i = int(np.argmax(np.sqrt(((rates - poses) ** 2).sum(axis=1))))
+        elif n == 2 and not broken.any():
             self.fault = (f"the gyros of modules 0 and 1 disagree by {size} for {lasted} (tolerated "
                           f"{math.degrees(tolerance):.0f}): a failed or loose IMU; no poses to tell which")
             return

@@ -349,7 +349,7 @@ class Flight:
         now = self.pose.now()
         gyro = telemetry.gyro if telemetry.gyro.size == 3 else None
         if gyro is not None and len(telemetry.module_gyros) > 1:
-            gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, est.pose_rate(now))
+            gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now))
         est.predict(now, gyro)
         for m in self.pose.measurements():
             est.correct(m)

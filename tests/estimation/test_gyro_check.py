@@ -14,7 +14,7 @@ def _run(agreement, rates_at, seconds=0.3, referee=None):
     for k in range(round(seconds / DT)):
         t = k * DT
         rates = rates_at(t)
-        out.append(agreement.rate(t, rates, rates.mean(axis=0), None if referee is None else referee(t)))
+        out.append(agreement.rate(t, rates, rates.mean(axis=0), None if referee is None else lambda t=t: referee(t)))
     return np.array(out)
 
 
