@@ -46,6 +46,7 @@ import numpy as np
 from groundstation.assembly import kinematics as kin
 from groundstation.assembly.module import GRAVITY, ModuleParams
 from groundstation.assembly.topology import Topology
+from groundstation.assembly.verification import SOLVER_BOUND_RELAXATION
 
 FEASIBILITY = "feasibility"
 COST = "cost"
@@ -57,6 +58,14 @@ PHASE1_REGULARIZATION = 1e-6
 manifold and the Hessian singular there: an n = 30 feasibility phase took 18-30 s at weight 1e-8 / 1e-10 and
 1.9 s at 1e-6, whose pull on the inputs leaves a wrench violation of order 1e-6 n m g (the cost phase then
 meets the wrenches exactly)."""
+
+
+def ipopt_options(tol: float, max_iter: int) -> dict:
+    """Options of every solver the NLP builds. ``constr_viol_tol`` is both Ipopt's tolerance on the equality
+    constraints and the cap on how far it relaxes the variable bounds: :data:`SOLVER_BOUND_RELAXATION`, a tenth of
+    the tolerance the verification accepts on the angle bounds."""
+    return {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+            "ipopt.tol": tol, "ipopt.constr_viol_tol": SOLVER_BOUND_RELAXATION, "ipopt.mu_strategy": "adaptive"}
 
 
 @dataclass(frozen=True)
@@ -226,10 +235,7 @@ class LiftedNlp:
                        "frames": frames, "centroid": self.centroid, "plane_w": ca.vec(w), "plane_c": c}
             x = ca.vertcat(*(symbols[name] for name in self._layout(pairs).sizes))
             g = ca.vertcat(self.g_eq, *g_pairs)
-            options = {
-                "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
-                "ipopt.tol": self.tol, "ipopt.constr_viol_tol": 1e-9, "ipopt.mu_strategy": "adaptive",
-            }
+            options = ipopt_options(self.tol, max_iter)
             if self.should_stop is not None:
                 sizes = {"x": x.shape[0], "f": 1, "g": g.shape[0], "lam_x": x.shape[0], "lam_g": g.shape[0],
                          "lam_p": self.phase.shape[0]}
@@ -285,31 +291,26 @@ def capsule_ends(positions, rotations, params: ModuleParams) -> np.ndarray:
     return np.column_stack([e for pair in ends for e in pair])
 
 
+def _pair_segments(ends: np.ndarray, pairs) -> tuple[np.ndarray, ...]:
+    """End points ``p0, p1`` (first module) and ``q0, q1`` (second) of each pair's capsule axes, ``(m, 3)`` each."""
+    i, j = np.asarray(pairs, dtype=int).reshape(-1, 2).T
+    return ends[:, 2 * i].T, ends[:, 2 * i + 1].T, ends[:, 2 * j].T, ends[:, 2 * j + 1].T
+
+
 def separating_planes(ends: np.ndarray, pairs: Pairs) -> tuple[np.ndarray, np.ndarray]:
     """Separating plane (w, c) starting values from the closest points of each pair's segments."""
-    w = np.zeros((3, len(pairs)))
-    c = np.zeros(len(pairs))
-    for idx, (i, j) in enumerate(pairs):
-        p0, p1, q0, q1 = ends[:, 2 * i], ends[:, 2 * i + 1], ends[:, 2 * j], ends[:, 2 * j + 1]
-        _, s, t = kin.segment_distance(p0, p1, q0, q1)
-        a, b = p0 + s * (p1 - p0), q0 + t * (q1 - q0)
-        d = a - b
-        if np.linalg.norm(d) < 1e-9:  # touching axes: separate along the line between module centres
-            d = (p0 + p1) / 2 - (q0 + q1) / 2
-            d[2] = 0.0
-        d = d / max(np.linalg.norm(d), 1e-12)
-        w[:, idx] = d
-        c[idx] = d @ (a + b) / 2
-    return w, c
+    p0, p1, q0, q1 = _pair_segments(ends, pairs)
+    _, s, t = kin.segment_distances(p0, p1, q0, q1)
+    a, b = p0 + s[:, None] * (p1 - p0), q0 + t[:, None] * (q1 - q0)
+    d = a - b
+    touching = np.linalg.norm(d, axis=1) < 1e-9  # touching axes: separate along the line between module centres
+    d[touching] = ((p0 + p1) / 2 - (q0 + q1) / 2)[touching] * np.array([1.0, 1.0, 0.0])
+    d = d / np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+    return d.T, np.einsum("ij,ij->i", d, (a + b) / 2)
 
 
 def close_pairs(ends: np.ndarray, threshold: float) -> set[tuple[int, int]]:
     """Module pairs whose capsule axes are closer than ``threshold``, m."""
-    n = ends.shape[1] // 2
-    out = set()
-    for i in range(n):
-        for j in range(i + 1, n):
-            d = kin.segment_distance(ends[:, 2 * i], ends[:, 2 * i + 1], ends[:, 2 * j], ends[:, 2 * j + 1])[0]
-            if d < threshold:
-                out.add((i, j))
-    return out
+    pairs = np.column_stack(np.triu_indices(ends.shape[1] // 2, 1))
+    dist = kin.segment_distances(*_pair_segments(ends, pairs))[0]
+    return {(int(i), int(j)) for (i, j), d in zip(pairs, dist, strict=True) if d < threshold}

@@ -10,7 +10,8 @@ This module runs them:
    violation skips the cost phase: it reports how far from feasible it got.
 3. The multi-start stops on evidence: once ``min_starts`` have run and the best cost has been reached by
    ``confirmations`` starts (a second basin leading to the same optimum), or when the budget is spent.
-4. Every candidate is verified in numpy against the original constraints over ALL module pairs.
+4. Every candidate is verified in numpy against the original constraints over ALL module pairs
+   (:mod:`groundstation.assembly.verification`).
 
 The design reports the distinct local optima its starts reached, how many reached the best, the relative gap to
 the second best, and the Boender-Rinnooy Kan estimate of optima no start reached.
@@ -28,16 +29,12 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.assembly_file import assembly_record
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
+from groundstation.assembly.verification import Verification, input_cost, verify
 from groundstation.design import starts as st
 from groundstation.design.certificates import Certificate, infeasibility_certificate
 from groundstation.design.interrupt import StopFlag, interruptible
 from groundstation.design.nlp import COST, FEASIBILITY, LiftedNlp, capsule_ends, close_pairs
 
-RESIDUAL_TOLERANCE = 1e-6
-"""A design meets a wrench when ``|A u - b|_inf <= RESIDUAL_TOLERANCE max(1, |b|_inf)`` (N, N m): floating
-point, not modelling slack."""
-BOUND_TOLERANCE = 1e-6
-"""Inputs may leave [0, u_max] by this fraction of ``u_max`` (Ipopt's interior point touches its bounds)."""
 SUCCEEDED = "Solve_Succeeded"
 """Ipopt's status of a fully converged solve (tolerance ``tol``, not only the acceptable level)."""
 FEASIBILITY_GATE = 1e-3
@@ -82,28 +79,6 @@ class SolverOptions:
     """Ipopt convergence tolerance (scaled problem)."""
     free_yaw: bool = True
     """Optimize the body yaw (``False``: the paper's formulation, yaw fixed at 0)."""
-
-
-@dataclass(frozen=True)
-class Verification:
-    """Checks made after the solve, in numpy, independently of the solver, over ALL module pairs."""
-
-    max_wrench_residual: float
-    """max_k |A u_k - b_k|_inf, N or N m."""
-    max_bound_violation: float
-    """Largest violation of 0 <= u <= u_max, rad^2/s^2."""
-    max_angle_violation: float
-    """Largest violation of |alpha| <= pi/2, rad."""
-    min_capsule_distance: float
-    """Smallest distance between any two capsule axes, m (``inf`` for one module)."""
-    required_distance: float
-    """2 r, m: required without tolerance."""
-    residual_tolerance: float
-    """Largest wrench residual accepted, N or N m (``RESIDUAL_TOLERANCE`` max(1, |b|_inf))."""
-    bound_tolerance: float
-    """Largest input bound violation accepted, rad^2/s^2."""
-    feasible: bool
-    """All checks pass."""
 
 
 @dataclass(frozen=True)
@@ -216,23 +191,6 @@ class Design:
         return rec
 
 
-def verify(topo: Topology, params: ModuleParams, alpha, yaw: float, u: np.ndarray,
-           wrenches: np.ndarray) -> Verification:
-    """Check a candidate design against the original constraints of eq. (opti), in numpy."""
-    pos, rot = kin.module_frames(topo, np.asarray(alpha, float), params.l_c, yaw)
-    a = kin.allocation_matrix(pos, rot, params)
-    residual = float(np.max(np.abs(u @ a.T - wrenches))) if len(wrenches) else 0.0
-    bound = float(max(0.0, -u.min(), u.max() - params.u_max))
-    angle = float(max(0.0, np.max(np.abs(alpha)) - np.pi / 2))
-    dist = kin.pairwise_capsule_distances(pos, rot, params)
-    dmin = float(dist.min()) if topo.n > 1 else float("inf")
-    res_tol = RESIDUAL_TOLERANCE * (max(1.0, float(np.max(np.abs(wrenches)))) if len(wrenches) else 1.0)
-    bound_tol = BOUND_TOLERANCE * params.u_max
-    ok = (residual <= res_tol and bound <= bound_tol and angle <= 1e-9 and dmin >= 2 * params.r
-          and bool(np.all(np.isfinite(u))))
-    return Verification(residual, bound, angle, dmin, 2 * params.r, res_tol, bound_tol, ok)
-
-
 def default_rim_tilts(n: int) -> tuple[float, ...]:
     """Fold order measured on the random-wrench sets (wall time of the whole multi-start, one core):
     20 degrees first for n = 30 took 2.9 / 8.1 / 6.5 s on three topologies against 23.8 / 5.7 / 5.5 s with
@@ -321,7 +279,7 @@ class _MultiStart:
         # round took 70-120.
         alpha, yaw, v, status, iters = self._phase(FEASIBILITY, alpha, yaw, v, active, max_iter, 1)
         u = np.clip(v.T * p.u_max, 0.0, p.u_max)
-        residual = verify(self.topo, p, alpha, yaw, u, self.wrenches).max_wrench_residual
+        residual = verify(Assembly(self.topo, p, alpha, yaw), u, self.wrenches).max_wrench_residual
         if residual > FEASIBILITY_GATE * self.scale:
             status = "Infeasible_Local"
         elif self.nlp.equalities <= self.nlp.unknowns:
@@ -331,8 +289,8 @@ class _MultiStart:
             iters += it
             u = np.clip(v.T * p.u_max, 0.0, p.u_max)
         self.known |= active
-        ver = verify(self.topo, p, alpha, yaw, u, self.wrenches)
-        cost = float(np.sum(self.weights * np.sum(u * u, axis=1))) if ver.feasible else float("inf")
+        ver = verify(Assembly(self.topo, p, alpha, yaw), u, self.wrenches)
+        cost = input_cost(u, self.weights) if ver.feasible else float("inf")
         out = _Outcome(alpha, float(np.arctan2(np.sin(yaw), np.cos(yaw))), u, cost, status, iters, ver, len(active))
         return out, StartReport(start.label, status, ver.feasible, cost, ver.max_wrench_residual, iters,
                                 time.perf_counter() - t0, *self.split, self.nlp.build_s - built)
@@ -373,8 +331,9 @@ def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights
         u = np.zeros((len(wrenches), 4 * topo.n))
         return Design(topology=topo, params=params, wrenches=wrenches, weights=weights, alpha=alpha, yaw=0.0, u=u,
                       cost=float("inf"), status="Infeasible_Certified", iterations=0,
-                      wall_s=time.perf_counter() - t_start, verification=verify(topo, params, alpha, 0.0, u, wrenches),
-                      certificate=certificate, stop_reason="certificate")
+                      wall_s=time.perf_counter() - t_start,
+                      verification=verify(Assembly(topo, params, alpha), u, wrenches), certificate=certificate,
+                      stop_reason="certificate")
     lo, hi = start_budget(topo.n)
     min_starts = min(opts.min_starts or lo, opts.max_starts or hi)
     max_starts = opts.max_starts or hi

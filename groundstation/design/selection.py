@@ -3,30 +3,44 @@
 For n = 1, 2, ... solve every candidate topology of n modules (exhaustive, sampled, or from a candidates file);
 stop at the first n with a feasible design and pick the least cost; the runner-up and its gap are reported with
 it. Candidates run in parallel, in a local process pool or on a Dask distributed scheduler. Every finished
-candidate is appended to a JSON-lines results file at once, so an interrupted sweep (Ctrl-C, a kill) resumes
-without redoing finished candidates.
+candidate is appended to a JSON-lines results file at once, with its design record, so an interrupted sweep
+(Ctrl-C, a kill) resumes without redoing finished candidates.
+
+A resumed row is not trusted: it is reused only if its fingerprint includes this solver's version
+(:func:`solver_version`), and only after its record has been re-verified from the saved angles and inputs
+(:func:`groundstation.assembly.assembly_file.checked_record`) and the row agrees with it: its topology, feasibility,
+cost, clearance, residual and certificate. A row that disagrees (an edited results file) is a ConfigError naming
+``FILE:LINE`` and the key; it is never reported as the best.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
+import math
 import signal
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
+import groundstation.assembly
+import groundstation.design
+from groundstation import __version__
 from groundstation.assembly.assembly import Assembly
-from groundstation.assembly.assembly_file import assembly_from_record
+from groundstation.assembly.assembly_file import COST_RTOL, POSE_TOLERANCE, checked_record
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
+from groundstation.assembly.verification import Verification
+from groundstation.design.certificates import infeasibility_certificate
 from groundstation.design.enumeration import SamplingPolicy, enumerate_levels
-from groundstation.design.optimize import SolverOptions, Verification, optimize
+from groundstation.design.optimize import SolverOptions, optimize
 from groundstation.design.task import Task
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, TopologyError
 from groundstation.output import writing
 
 
@@ -45,7 +59,8 @@ class CandidateResult:
     max_wrench_residual: float
     """Of the chosen start: the least any start reached when infeasible, N or N m."""
     key: str
-    """Fingerprint of (task, module parameters, solver options, topology): what resuming matches on."""
+    """Fingerprint of (task, module parameters, solver options, topology, solver version): what resuming matches
+    on."""
     starts: int = 0
     feasible_starts: int = 0
     optima: int = 0
@@ -74,15 +89,12 @@ class SelectedDesign:
 
     @classmethod
     def of(cls, row: CandidateResult, record: dict, src: str) -> SelectedDesign:
-        """From a candidate's row and record; a malformed record (a hand-edited results file ``src``) is a
-        ConfigError naming it."""
-        assembly = assembly_from_record(record, src)
-        try:
-            wrenches = np.array(record["wrenches"], float).reshape(-1, 6)
-            verification = Verification(**record["verification"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ConfigError(f"the record of {row.code} is not a design record: {exc}", path=src) from None
-        return cls(row, assembly, wrenches, verification, record)
+        """From a candidate's row and record, re-verified like an assembly file being loaded; a record that does
+        not verify (a hand-edited results file ``src``) is a ConfigError naming it and the key."""
+        assembly, design = checked_record(record, src)
+        if design is None:
+            raise ConfigError(f"the record of {row.code} is not a design record", path=src, key="verification")
+        return cls(row, assembly, design.wrenches, design.verification, record)
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,8 +118,21 @@ class Selection:
         return ranked[1] if len(ranked) > 1 else None
 
 
+@functools.cache
+def solver_version() -> str:
+    """What a design depends on besides its inputs: the package version, the source of the ``assembly`` and
+    ``design`` packages, and the CasADi (with its Ipopt) and numpy versions, hashed. Any change there makes rows of
+    an earlier run new work instead of results reused as if this code had solved them."""
+    digest = hashlib.sha256(f"{__version__} casadi {ca.__version__} numpy {np.__version__}".encode())
+    for package in (groundstation.assembly, groundstation.design):
+        for path in sorted(Path(package.__file__).parent.glob("*.py")):
+            digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def fingerprint(task: Task, params: ModuleParams, opts: SolverOptions, code: str) -> str:
-    blob = json.dumps([asdict(task), asdict(params), asdict(opts), code], sort_keys=True, default=str)
+    blob = json.dumps([asdict(task), asdict(params), asdict(opts), code, solver_version()], sort_keys=True,
+                      default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -131,9 +156,20 @@ def candidate_codes(n: int, sampling: SamplingPolicy | None, symmetry: str = "C4
     return [t.code for t in level.topologies()]
 
 
-def read_results(path: Path) -> dict[str, tuple[CandidateResult, dict | None]]:
+@dataclass(frozen=True, eq=False)
+class SavedRow:
+    """A finished candidate as an earlier run wrote it: not yet verified."""
+
+    row: CandidateResult
+    record: dict | None
+    """Its design record (``None`` in files written before records were kept for infeasible rows)."""
+    src: str
+    """``FILE:LINE`` it was read from, for errors."""
+
+
+def read_results(path: Path) -> dict[str, SavedRow]:
     """Finished candidates of an earlier run, by fingerprint. A torn last line (killed mid-write) is skipped."""
-    done: dict[str, tuple[CandidateResult, dict | None]] = {}
+    done: dict[str, SavedRow] = {}
     if not path.exists():
         return done
     lines = path.read_text().splitlines()
@@ -147,8 +183,57 @@ def read_results(path: Path) -> dict[str, tuple[CandidateResult, dict | None]]:
             if lineno == len(lines):
                 continue
             raise ConfigError(f"line {lineno} is not a result row: {exc}", path=str(path)) from None
-        done[row.key] = (row, entry.get("record"))
+        done[row.key] = SavedRow(row, entry.get("record"), f"{path}:{lineno}")
     return done
+
+
+def _close(stored, recomputed: float, rel: float, abs_: float = 0.0) -> bool:
+    """A stored number agrees with the recomputed one (``inf`` only with ``inf``; a non-number never)."""
+    return isinstance(stored, int | float) and math.isclose(stored, recomputed, rel_tol=rel, abs_tol=abs_)
+
+
+def _reverified(saved: SavedRow, task: Task, params: ModuleParams) -> tuple[CandidateResult, dict]:
+    """A resumed row and its record, once the record re-verifies from its angles and inputs and the row agrees
+    with it and with this task; otherwise a ConfigError naming ``FILE:LINE`` and the key (``row.*`` for the row,
+    the record's own keys otherwise)."""
+    row, record, src = saved.row, saved.record, saved.src
+    if record is None:
+        raise ConfigError("no design record to verify the row against", path=src, key="record")
+    assembly, design = checked_record(record, src)
+    if design is None:
+        raise ConfigError("not a design record", path=src, key="record")
+    try:
+        code = Topology.from_code(row.code).code
+    except TopologyError as exc:
+        raise ConfigError(f"invalid topology: {exc}", path=src, key="row.code") from None
+    if code != assembly.topology.code:
+        raise ConfigError(f"says {row.code}, but the record is a design of {assembly.topology.code}", path=src,
+                          key="row.code")
+    if row.n != assembly.n:
+        raise ConfigError(f"says {row.n}, but {code} has {assembly.n} modules", path=src, key="row.n")
+    if assembly.params != params:
+        raise ConfigError("not the module parameters of this run", path=src, key="module_params")
+    wrenches, weights = task.wrenches_for(assembly.n, params)
+    for key, stored, wanted in (("wrenches", design.wrenches, wrenches), ("weights", design.weights, weights)):
+        if stored.shape != wanted.shape or not np.allclose(stored, wanted, rtol=1e-12, atol=0.0):
+            raise ConfigError(f"not the task's {key} for {assembly.n} modules", path=src, key=key)
+    ver = design.verification
+    certificate = infeasibility_certificate(assembly.topology, params, wrenches)
+    checks = (  # the row's field, its value recomputed from the record, whether they agree
+        ("feasible", ver.feasible, row.feasible is ver.feasible),
+        ("cost", design.cost, _close(row.cost, design.cost, COST_RTOL)),
+        ("min_clearance_m", ver.min_capsule_distance, _close(row.min_clearance_m, ver.min_capsule_distance, 1e-9,
+                                                             POSE_TOLERANCE)),
+        ("max_wrench_residual", ver.max_wrench_residual, _close(row.max_wrench_residual, ver.max_wrench_residual,
+                                                                1e-9, ver.residual_tolerance)),
+        ("certificate", certificate.reason if certificate else "",
+         row.certificate == (certificate.reason if certificate else "")),
+    )
+    for name, recomputed, ok in checks:
+        if not ok:
+            raise ConfigError(f"says {getattr(row, name)!r}, but its record, re-verified, gives {recomputed!r}",
+                              path=src, key=f"row.{name}")
+    return row, record
 
 
 def _truncate_torn_tail(path: Path) -> None:
@@ -237,9 +322,9 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
         for c in codes:
             key = fingerprint(task, params, opts, c)
             if key in done:
-                level.append(done[key])
+                level.append(_reverified(done[key], task, params))
                 if on_result is not None:
-                    on_result(done[key][0])
+                    on_result(level[-1][0])
             else:
                 todo.append(c)
         with _Runner(workers, scheduler) as runner:
@@ -247,14 +332,14 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
                 level.append((row, record))
                 if path is not None:
                     with writing(path), path.open("a") as fh:  # one line per finished candidate, flushed at once
-                        fh.write(json.dumps({"row": asdict(row), "record": record if row.feasible else None}) + "\n")
+                        fh.write(json.dumps({"row": asdict(row), "record": record}) + "\n")
                 if on_result is not None:
                     on_result(row)
         rows.extend(r for r, _ in level)
-        feasible = [(r, rec) for r, rec in level if r.feasible and rec is not None]
+        feasible = [(r, rec) for r, rec in level if r.feasible]
         if feasible:
             best_row, best_record = min(feasible, key=lambda x: (x[0].cost, x[0].code))
-            src = str(path) if path is not None and best_row.key in done else f"the design of {best_row.code}"
+            src = done[best_row.key].src if best_row.key in done else f"the design of {best_row.code}"
             return Selection(SelectedDesign.of(best_row, best_record, src), n, tuple(rows))
     return Selection(None, None, tuple(rows))
 

@@ -5,21 +5,38 @@ import numpy as np
 import pytest
 
 from groundstation.assembly.assembly import Assembly
-from groundstation.assembly.assembly_file import assembly_record, load_assembly, save_assembly
+from groundstation.assembly.assembly_file import (
+    LEGACY_FIGURES,
+    assembly_record,
+    checked_record,
+    load_assembly,
+    save_assembly,
+)
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
+from groundstation.assembly.verification import input_cost
 from groundstation.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
+P = ModuleParams()
 
 
-def test_every_shipped_assembly_loads_and_is_feasible():
-    files = sorted((ROOT / "configs/assemblies").glob("*.json"))
-    assert files
-    for f in files:
-        assembly, rec = load_assembly(f)
-        assert rec["feasible"] and rec["verification"]["feasible"]
-        assert assembly.n == rec["n"]
+SHIPPED = sorted((ROOT / "configs/assemblies").glob("*.json"))
+TOY = ROOT / "configs/assemblies/toy_v2.json"
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_every_shipped_assembly_loads_and_reverifies(path):
+    rec = json.loads(path.read_text())
+    assembly, design = checked_record(rec, str(path))
+    assert rec["feasible"] and rec["verification"]["feasible"] and assembly.n == rec["n"]
+    assert input_cost(design.u, design.weights) == pytest.approx(rec["cost"], rel=1e-12)
+    ver = design.verification
+    assert ver.max_wrench_residual <= ver.residual_tolerance and ver.max_bound_violation == 0
+    if set(rec["verification"]) != LEGACY_FIGURES:
+        assert ver.feasible and design.cost == pytest.approx(rec["cost"], rel=1e-12)
+    else:  # written under the old rule (clearance 2 r - 1e-6 m): three designs are 2.0-2.1e-9 m inside 2 r
+        assert ver.feasible or 0 < 2 * P.r - ver.min_capsule_distance < 2.2e-9
 
 
 def _axis_distance(p0, p1, q0, q1, samples=400):
@@ -83,3 +100,59 @@ def test_tampered_files_name_the_key(tmp_path, edit, key):
     with pytest.raises(ConfigError) as err:
         load_assembly(path)
     assert err.value.key == key and str(path) in str(err.value)
+
+
+def _scaled_u(r, factor):
+    r["u"] = (np.array(r["u"]) * factor).tolist()
+
+
+def _swap_verification_fields(r):
+    r["verification"]["min_capsule_distance"] = 0.25
+
+
+@pytest.mark.parametrize("edit, key, fragment", [
+    (lambda r: r.update(n=3), "n", "says 3, but oS has 2 modules"),
+    (lambda r: r.update(mass_kg=4.8), "mass_kg", "says 4.8 kg, but 2 modules of 0.24 kg make 0.48 kg"),
+    (lambda r: r.update(inertia_kg_m2=(2 * np.array(r["inertia_kg_m2"])).tolist()), "inertia_kg_m2", "disagrees"),
+    (lambda r: r.update(controllable_dof=6), "controllable_dof", "says 6, but the allocation matrix has rank 5"),
+    (lambda r: r["rotors"][5].update(position=[0.0, 0.0, 0.0]), "rotors[5].position", "disagrees"),
+    (lambda r: r["rotors"][3].update(spin=-r["rotors"][3]["spin"]), "rotors[3].spin", "disagrees"),
+    (lambda r: r["rotors"][6].update(axis=[0, 0, 1]), "rotors[6].axis", "disagrees"),
+    (lambda r: r["rotors"].pop(), "rotors", "expected 8 rotors"),
+    (lambda r: r.update(yaw_deg="north"), "yaw_deg", "not numeric"),
+    (lambda r: _scaled_u(r, 1.001), "feasible", "says True, but the design recomputed from the angles and inputs is "
+                                                 "infeasible: wrench residual"),
+    (lambda r: r["u"][0].__setitem__(0, -10.0), "feasible", "inputs 10 rad^2/s^2 outside [0, u_max]"),
+    (lambda r: r["wrenches"][1].__setitem__(0, 0.5), "feasible", "wrench residual 0.5 above"),
+    (lambda r: r.update(feasible=False), "feasible", "says False, but the design recomputed from the angles and "
+                                                     "inputs is feasible: every check passes"),
+    (lambda r: r.update(cost=r["cost"] / 2), "cost", "but the inputs cost 7.37546364e+13"),
+    (lambda r: r.update(cost=None), "cost", "says None"),
+    (_swap_verification_fields, "verification.min_capsule_distance", "says 0.25, recomputed 0.2396"),
+    (lambda r: r["verification"].update(feasible=False), "verification.feasible", "says False where feasible"),
+    (lambda r: r.pop("u"), "u", "missing"),
+    (lambda r: r.update(weights=[1.0]), "weights", "expected 3 finite numbers, got shape 1"),
+])
+def test_a_tampered_design_file_is_refused_naming_the_key(tmp_path, edit, key, fragment):
+    rec = json.loads(TOY.read_text())
+    edit(rec)
+    path = tmp_path / "tampered.json"
+    path.write_text(json.dumps(rec))
+    with pytest.raises(ConfigError) as err:
+        load_assembly(path)
+    assert err.value.key == key and str(err.value).startswith(f"{path}: {key}: ") and fragment in str(err.value)
+
+
+def test_the_legacy_clearance_rule_holds_only_for_legacy_records(tmp_path):
+    """paper_fig1_n12 was verified when 2 r - 1e-6 m passed and is 2.0e-9 m inside 2 r: it loads as written, but
+    not once its verification figures claim the exact rule of today's verification."""
+    rec = json.loads((ROOT / "configs/assemblies/paper_fig1_n12.json").read_text())
+    _, design = checked_record(rec, "fig1")
+    assert 2 * P.r - design.verification.min_capsule_distance == pytest.approx(2.03e-9, rel=0.01)
+    rec["verification"].update(residual_tolerance=design.verification.residual_tolerance,
+                               bound_tolerance=design.verification.bound_tolerance)
+    path = tmp_path / "fig1.json"
+    path.write_text(json.dumps(rec))
+    with pytest.raises(ConfigError) as err:
+        load_assembly(path)
+    assert err.value.key == "feasible" and "capsule axes 0.189999998 m apart, under 2 r = 0.19 m" in str(err.value)

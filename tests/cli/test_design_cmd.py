@@ -46,6 +46,21 @@ def test_bad_input(cli, args, fragment):
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
 
 
+def test_an_edited_results_file_is_refused(cli, tmp_path):
+    results = tmp_path / "r.jsonl"
+    code, _, _ = cli("design", TOY, "--max-modules", "2", "--results", str(results))
+    assert code == 0
+    lines = results.read_text().splitlines()
+    entry = json.loads(lines[0])  # the single module: infeasible
+    entry["row"].update(feasible=True, cost=1.0)
+    results.write_text(json.dumps(entry) + "\n" + lines[1] + "\n")
+    out_file = tmp_path / "best.json"
+    code, out, err = cli("design", TOY, "--max-modules", "2", "--results", str(results), "--out", str(out_file))
+    assert code == 2 and not out_file.exists() and "best" not in out
+    assert err == f"groundstation: error: {results}:1: row.feasible: says True, but its record, re-verified, " \
+                  "gives False\n"
+
+
 IV_C = str(ROOT / "configs/tasks/paper_iv_c_three_wrenches.toml")
 
 

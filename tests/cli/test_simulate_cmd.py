@@ -43,10 +43,17 @@ def test_bad_input(cli, args, fragment):
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_invalid_assembly_file(cli, tmp_path):
+@pytest.mark.parametrize("key, value", [("n", 3), ("mass_kg", 4.8), ("feasible", False)])
+def test_invalid_assembly_file(cli, tmp_path, key, value):
+    """A file whose stored values disagree with its geometry or its design is refused before anything flies."""
     rec = json.loads(Path(TOY).read_text())
     rec["modules"][0]["position"] = [1, 2, 3]
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(rec))
     code, out, err = cli("simulate", str(bad))
     assert code == 2 and "modules[0].position" in err
+    rec = json.loads(Path(TOY).read_text()) | {key: value}
+    bad.write_text(json.dumps(rec))
+    code, out, err = cli("simulate", str(bad))
+    assert code == 2 and err.startswith(f"groundstation: error: {bad}: {key}: says {value}")
+    assert len(err.strip().splitlines()) == 1, err

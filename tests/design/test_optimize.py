@@ -7,7 +7,7 @@ from groundstation.assembly import kinematics as kin
 from groundstation.assembly.assembly_file import load_assembly, save_assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
-from groundstation.design.optimize import SolverOptions, optimize, verify
+from groundstation.design.optimize import SolverOptions, optimize
 from groundstation.design.task import load_task
 from tests.recheck import wrenches_from_rotors
 
@@ -72,43 +72,6 @@ def test_infeasible_task_is_a_result():
     d = optimize(Topology.single(), P, b, opts=SolverOptions(rim_tilts_deg=(0.0,)))
     assert not d.feasible
     assert d.verification.max_wrench_residual > 0.1
-
-
-def test_verify_detects_each_violation():
-    topo = Topology.from_code("oS")
-    alpha = np.radians([22.5, 0, -45])
-    pos, rot = kin.module_frames(topo, alpha, P.l_c)
-    a = kin.allocation_matrix(pos, rot, P)
-    b = np.array([[0, 0, 4.7, 0, 0, 0]])
-    u = b @ np.linalg.pinv(a).T
-    assert verify(topo, P, alpha, 0.0, u, b).feasible
-    assert not verify(topo, P, alpha, 0.0, u * 1.01, b).feasible  # residual
-    assert not verify(topo, P, alpha, 0.0, u - u.max(), b).feasible  # negative inputs
-    bowl_down = np.radians([-30, 0, 60])  # axes converge below: capsules cross
-    assert verify(topo, P, bowl_down, 0.0, u, b).min_capsule_distance < 2 * P.r
-
-
-def test_clearance_is_verified_without_tolerance():
-    # Two modules leaning toward each other (a bowl-down V): find the lean at which the capsule axes are exactly
-    # 2r apart, then step 1e-7 rad either side.
-    from scipy.optimize import brentq
-
-    topo = Topology.from_code("oS")
-
-    def angles(t):
-        return np.array([-t, 0.0, 2 * t])
-
-    def gap(t):
-        pos, rot = kin.module_frames(topo, angles(t), P.l_c)
-        return kin.pairwise_capsule_distances(pos, rot, P)[0, 1] - 2 * P.r
-
-    touch = brentq(gap, 0.0, 0.3, xtol=1e-14)
-    for t in (touch - 1e-7, touch + 1e-7):
-        ver = verify(topo, P, angles(t), 0.0, np.zeros((1, 8)), np.zeros((1, 6)))
-        assert abs(ver.min_capsule_distance - 2 * P.r) < 1e-6
-        assert ver.feasible == (ver.min_capsule_distance >= 2 * P.r)
-    assert verify(topo, P, angles(touch - 1e-7), 0.0, np.zeros((1, 8)), np.zeros((1, 6))).feasible
-    assert not verify(topo, P, angles(touch + 1e-7), 0.0, np.zeros((1, 8)), np.zeros((1, 6))).feasible
 
 
 def test_designs_keep_the_clearance_margin():

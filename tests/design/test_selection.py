@@ -1,3 +1,4 @@
+import copy
 import json
 from pathlib import Path
 
@@ -5,6 +6,7 @@ import numpy as np
 import pytest
 
 from groundstation.assembly.module import ModuleParams
+from groundstation.design import selection
 from groundstation.design.selection import read_results, select
 from groundstation.design.task import load_task
 from groundstation.errors import ConfigError
@@ -62,22 +64,93 @@ def test_infeasible_up_to_max_is_a_result():
     assert sel.best is None and sel.n is None and len(sel.results) == 1
 
 
-def test_results_file_rows_are_json(tmp_path):
-    path = tmp_path / "r.jsonl"
+@pytest.fixture(scope="module")
+def toy_results(tmp_path_factory) -> list[dict]:
+    """The results file of the toy task up to two modules: line 1 the single module (infeasible), line 2 oE."""
+    path = tmp_path_factory.mktemp("toy") / "r.jsonl"
     select(TOY, P, 2, results_path=path)
-    for line in path.read_text().splitlines():
-        entry = json.loads(line)
-        assert entry["row"]["feasible"] == (entry["record"] is not None)
+    return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def test_a_hand_edited_record_in_the_results_file_is_named(tmp_path):
-    path = tmp_path / "r.jsonl"
-    select(TOY, P, 2, results_path=path)
-    entries = [json.loads(line) for line in path.read_text().splitlines()]
-    for e in entries:
-        if e["record"] is not None:
-            e["record"]["angles_deg"] = e["record"]["angles_deg"][:1]  # one angle where oE has three
+def _write(path: Path, entries: list[dict]) -> Path:
     path.write_text("".join(json.dumps(e) + "\n" for e in entries))
+    return path
+
+
+def test_results_file_rows_are_json_with_their_records(toy_results):
+    assert [(e["row"]["n"], e["row"]["feasible"]) for e in toy_results] == [(1, False), (2, True)]
+    for entry in toy_results:
+        assert entry["record"]["feasible"] == entry["row"]["feasible"]
+        assert entry["record"]["topology"]["code"] == entry["row"]["code"]
+
+
+def test_a_hand_edited_record_in_the_results_file_is_named(tmp_path, toy_results):
+    entries = copy.deepcopy(toy_results)
+    for e in entries:
+        e["record"]["angles_deg"] = e["record"]["angles_deg"][:1]  # one angle where there are two or three
+    path = _write(tmp_path / "r.jsonl", entries)
     with pytest.raises(ConfigError) as err:
         select(TOY, P, 2, results_path=path)
-    assert err.value.path == str(path) and err.value.key == "angles_deg"
+    assert err.value.path == f"{path}:1" and err.value.key == "angles_deg"
+
+
+def _claim_best(entries):
+    """The single module's row claims to be feasible at a cost below any design's."""
+    entries[0]["row"].update(feasible=True, cost=1.0, status="Solve_Succeeded", certificate="")
+
+
+def _claim_best_with_its_record(entries):
+    _claim_best(entries)
+    entries[0]["record"].update(feasible=True, cost=1.0)
+    entries[0]["record"]["verification"]["feasible"] = True
+
+
+def _claim_best_with_another_design(entries):
+    """What issue 23 did to oS(W)E: an infeasible topology's line carries a feasible design's record."""
+    _claim_best(entries)
+    entries[0]["record"] = copy.deepcopy(entries[1]["record"])
+
+
+def _cheaper(entries):
+    entries[1]["row"]["cost"] /= 2
+
+
+def _hidden(entries):
+    entries[1]["row"].update(feasible=False, cost=float("inf"))
+
+
+@pytest.mark.parametrize("edit, line, key, fragment", [
+    (_claim_best, 1, "row.feasible", "says True, but its record, re-verified, gives False"),
+    (_claim_best_with_its_record, 1, "feasible", "says True, but the design recomputed from the angles and inputs is "
+                                                 "infeasible: wrench residual"),
+    (_claim_best_with_another_design, 1, "row.code", "says o, but the record is a design of oE"),
+    (_cheaper, 2, "row.cost", "but its record, re-verified, gives"),
+    (_hidden, 2, "row.feasible", "says False, but its record, re-verified, gives True"),
+])
+def test_an_edited_results_line_is_refused_never_reported_best(tmp_path, toy_results, edit, line, key, fragment):
+    entries = copy.deepcopy(toy_results)
+    edit(entries)
+    path = _write(tmp_path / "r.jsonl", entries)
+    reported = []
+    with pytest.raises(ConfigError) as err:
+        select(TOY, P, 2, results_path=path, on_result=reported.append)
+    assert err.value.path == f"{path}:{line}" and err.value.key == key and fragment in str(err.value)
+    assert all(r.feasible is False for r in reported)  # the edited row never reached the caller as feasible
+
+
+def test_rows_of_another_solver_version_are_solved_again(tmp_path, toy_results, monkeypatch):
+    path = _write(tmp_path / "r.jsonl", toy_results)
+    again = select(TOY, P, 2, results_path=path)
+    assert len(path.read_text().splitlines()) == 2  # same code: reused (and re-verified)
+    monkeypatch.setattr(selection, "solver_version", lambda: "a newer solver")
+    newer = select(TOY, P, 2, results_path=path)
+    rows = read_results(path)
+    assert len(path.read_text().splitlines()) == 4 and len(rows) == 4  # both candidates solved again, appended
+    assert newer.best.row.key != again.best.row.key
+    assert newer.best.row.cost == pytest.approx(again.best.row.cost, rel=1e-6)
+
+
+def test_the_solver_version_hashes_the_design_and_assembly_sources():
+    version = selection.solver_version()
+    assert len(version) == 16 and int(version, 16) >= 0
+    assert version == selection.solver_version()
