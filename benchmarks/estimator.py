@@ -2,10 +2,12 @@
 
     python -m benchmarks.estimator [--periods 20000] [--repeats 7] [--flights] [--duration 16]
 
-Part 1 (one core): the estimator's work in one period of a 250 Hz loop with 100 Hz mocap (predict with the gyros,
-a measurement fused every 2.5 periods, the commanded force of ``4n`` rotor inputs), for n = 2 and n = 60, against
-the controller's own step (``control`` + allocation) in the same process: medians over repeats, and the ratio.
-Targets: 50 us at n = 2, 200 us at n = 60.
+Part 1 (one core): the estimator's work in one period of a 250 Hz loop with 100 Hz mocap, for n = 2 and n = 60:
+the filter (predict with the body rate, a measurement fused every 2.5 periods, the state read, the commanded force
+of ``4n`` rotor inputs), the check of the n modules' gyros against each other (``GyroAgreement``), and both in one
+loop as the flight runs them (``Flight._estimate``), against the controller's own step (``control`` + allocation)
+in the same process: medians over repeats, and the ratio of both to the controller. Targets: 50 us at n = 2,
+200 us at n = 60.
 
 Part 2 (``--flights``): the toy figure-8 in lockstep (``fly_simulated``, 1 mm / 0.2 deg mocap noise, 5 ms latency,
 100 Hz) for several ``accel_noise`` settings: position RMSE, attitude error p95 against the controller's target,
@@ -19,6 +21,7 @@ import argparse
 import dataclasses
 import math
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +34,7 @@ from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState
 from groundstation.control.trajectory import FlightPlan, euler_zyx, make_track
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
+from groundstation.estimation.gyro_check import GyroAgreement
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.runtime.flight_config import read_assembly
 
@@ -38,8 +42,9 @@ ROOT = Path(__file__).resolve().parents[1]
 ASSEMBLIES = {2: "toy_v2.json", 60: "random10_seed0_n60.json"}
 
 
-def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float]:
-    """Median per-period time of the estimator and of the controller + allocation, us."""
+def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, float, float]:
+    """Median per-period time of the filter, of the gyro check, of both as flown and of the controller + allocation,
+    us."""
     asm = read_assembly(ROOT / "configs/assemblies" / ASSEMBLIES[n])
     model = ControlModel.from_assembly(asm)
     rng = np.random.default_rng(0)
@@ -52,8 +57,9 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float]:
     setpoints = [plan(3.0 + k * dt) for k in range(periods)]
     states = [RigidState(np.array([0.0, 0.0, 1.0]), np.zeros(3), euler_zyx(*rng.normal(0, 0.02, 3)), g)
               for g in gyros]
+    module_gyros = gyros[:, None, :] + rng.normal(0, 0.01, (periods, n, 3))  # the modules' readings, in agreement
     gains = Gains()
-    est_runs, ctrl_runs = [], []
+    filter_runs, gyro_runs, both_runs, ctrl_runs = [], [], [], []
     for _ in range(repeats):
         f = RigidBodyFilter(EstimatorSettings(gyro_delay=0.01), model.mass)
         t0 = time.perf_counter()
@@ -63,12 +69,27 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float]:
                 f.correct(poses[k])
             f.state()
             f.command(model.allocation[:3] @ hover)
-        est_runs.append((time.perf_counter() - t0) / periods * 1e6)
+        filter_runs.append((time.perf_counter() - t0) / periods * 1e6)
+        agreement = GyroAgreement()
+        t0 = time.perf_counter()
+        for k in range(periods):
+            agreement.rate(k * dt, module_gyros[k], gyros[k])
+        gyro_runs.append((time.perf_counter() - t0) / periods * 1e6)
+        f, agreement = RigidBodyFilter(EstimatorSettings(gyro_delay=0.01), model.mass), GyroAgreement()
+        t0 = time.perf_counter()
+        for k in range(periods):
+            now = k * dt
+            f.predict(now, agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now)))
+            if k % 5 in (0, 2):
+                f.correct(poses[k])
+            f.state()
+            f.command(model.allocation[:3] @ hover)
+        both_runs.append((time.perf_counter() - t0) / periods * 1e6)
         t0 = time.perf_counter()
         for k in range(periods):
             allocate(control(states[k], setpoints[k], model, gains).wrench, model)
         ctrl_runs.append((time.perf_counter() - t0) / periods * 1e6)
-    return median(est_runs), median(ctrl_runs)
+    return median(filter_runs), median(gyro_runs), median(both_runs), median(ctrl_runs)
 
 
 def _flight(settings: EstimatorSettings, noisy: bool, duration: float):
@@ -97,10 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     pin_one_core()
     rows = []
     for n, target in ((2, 50.0), (60, 200.0)):
-        est, ctrl = _period_costs(n, a.periods, a.repeats)
-        rows.append([n, est, target, ctrl, est / ctrl])
+        filt, gyro, both, ctrl = _period_costs(n, a.periods, a.repeats)
+        rows.append([n, filt, gyro, both, target, ctrl, both / ctrl])
     print_table(f"estimator per 250 Hz period (100 Hz mocap), median of {a.repeats} x {a.periods} periods, one core",
-                ["n", "estimator (us)", "target (us)", "controller + allocation (us)", "ratio"], rows)
+                ["n", "filter (us)", "gyro check (us)", "both, as flown (us)", "target (us)",
+                 "controller + allocation (us)", "ratio (both)"], rows)
     if a.flights:
         base = EstimatorSettings(position_noise=1e-3, attitude_noise=math.radians(0.2))
         rows = [["exact mocap, default", *_flight(EstimatorSettings(), False, a.duration)]]

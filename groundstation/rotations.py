@@ -1,6 +1,11 @@
 """Rotation helpers shared by control, simulation, mocap and logging (one home, no copies).
 
 Quaternions are ``(x, y, z, w)``, the order of PyBullet and of ``foxglove.Quaternion``.
+
+The ``mat3_*`` forms work on :data:`Mat3`, a 3x3 matrix as a flat tuple of floats, in plain Python arithmetic: code
+that runs every control period on single 3-vectors and rotations (the state estimator) pays ~1-2 us of numpy
+overhead per call on arrays that small, several times what the arithmetic costs. The numpy forms are built on
+them.
 """
 
 from __future__ import annotations
@@ -9,36 +14,93 @@ import math
 
 import numpy as np
 
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[float, float, float, float, float, float, float, float, float]
+"""A 3x3 matrix, its entries row by row."""
+
 
 def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (axis times angle, rad), Rodrigues' formula ``I + s K + c K^2``.
-
-    In scalar arithmetic: the estimator calls it a few times every control period, and numpy's per-call overhead
-    on 3-vectors made it ~10 us; this is ~2 us."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
+def mat3_from_rotvec(x: float, y: float, z: float) -> Mat3:
+    """Rotation matrix of the rotation vector ``(x, y, z)`` (axis times angle, rad), Rodrigues' formula
+    ``I + s K + c K^2``."""
     th2 = x * x + y * y + z * z
     if th2 < 1e-24:
-        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+        return (1.0, -z, y, z, 1.0, -x, -y, x, 1.0)
     th = math.sqrt(th2)
     s = math.sin(th) / th
     c = (1.0 - math.cos(th)) / th2
     xy, xz, yz = c * x * y, c * x * z, c * y * z
-    return np.array([[1.0 - c * (y * y + z * z), xy - s * z, xz + s * y],
-                     [xy + s * z, 1.0 - c * (x * x + z * z), yz - s * x],
-                     [xz - s * y, yz + s * x, 1.0 - c * (x * x + y * y)]])
+    return (1.0 - c * (y * y + z * z), xy - s * z, xz + s * y,
+            xy + s * z, 1.0 - c * (x * x + z * z), yz - s * x,
+            xz - s * y, yz + s * x, 1.0 - c * (x * x + y * y))
+
+
+def mat3_to_rotvec(r: Mat3) -> Vec3:
+    """Rotation vector of a rotation matrix (inverse of :func:`mat3_from_rotvec` for angles below pi)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    angle = math.acos(min(1.0, max(-1.0, (r00 + r11 + r22 - 1.0) / 2.0)))
+    if angle > math.pi - 1e-4:
+        # Near a half turn the antisymmetric part vanishes (an exact one gave a zero vector: a pose flipped by 180
+        # deg, a mocap rigid body defined upside down, passed every attitude gate); the axis is in r = 2 a a^T - I.
+        diag = ((r00 + 1.0) / 2.0, (r11 + 1.0) / 2.0, (r22 + 1.0) / 2.0)
+        i = max(range(3), key=diag.__getitem__)
+        sym = ((r00, r01 + r10, r02 + r20), (r01 + r10, r11, r12 + r21), (r02 + r20, r12 + r21, r22))
+        ai = math.sqrt(max(diag[i], 0.0))
+        axis = [sym[i][j] / (4.0 * ai) if j != i else ai for j in range(3)]
+        sign = -1.0 if (r21 - r12, r02 - r20, r10 - r01)[i] < 0.0 else 1.0  # the turn's sense, while it shows
+        return (sign * angle * axis[0], sign * angle * axis[1], sign * angle * axis[2])
+    k = 0.5 if angle < 1e-9 else angle / (2.0 * math.sin(angle))
+    return (k * (r21 - r12), k * (r02 - r20), k * (r10 - r01))
+
+
+def mat3_mul(a: Mat3, b: Mat3) -> Mat3:
+    """``a @ b``."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
+
+
+def mat3_tmul(a: Mat3, b: Mat3) -> Mat3:
+    """``a.T @ b``: for rotations, ``b`` relative to ``a``."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (a0 * b0 + a3 * b3 + a6 * b6, a0 * b1 + a3 * b4 + a6 * b7, a0 * b2 + a3 * b5 + a6 * b8,
+            a1 * b0 + a4 * b3 + a7 * b6, a1 * b1 + a4 * b4 + a7 * b7, a1 * b2 + a4 * b5 + a7 * b8,
+            a2 * b0 + a5 * b3 + a8 * b6, a2 * b1 + a5 * b4 + a8 * b7, a2 * b2 + a5 * b5 + a8 * b8)
+
+
+def mat3_vec(a: Mat3, v: Vec3) -> Vec3:
+    """``a @ v``."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    x, y, z = v
+    return (a0 * x + a1 * y + a2 * z, a3 * x + a4 * y + a5 * z, a6 * x + a7 * y + a8 * z)
+
+
+def mat3_orthonormal(r: Mat3) -> Mat3:
+    """One Newton step back to a rotation, ``r (3 I - r.T r) / 2`` (rounding drifts products of many small rotations
+    off it)."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+    # r.T r is symmetric: its six distinct entries
+    s00, s01, s02 = r0 * r0 + r3 * r3 + r6 * r6, r0 * r1 + r3 * r4 + r6 * r7, r0 * r2 + r3 * r5 + r6 * r8
+    s11, s12, s22 = r1 * r1 + r4 * r4 + r7 * r7, r1 * r2 + r4 * r5 + r7 * r8, r2 * r2 + r5 * r5 + r8 * r8
+    return mat3_mul(r, (1.5 - 0.5 * s00, -0.5 * s01, -0.5 * s02,
+                        -0.5 * s01, 1.5 - 0.5 * s11, -0.5 * s12,
+                        -0.5 * s02, -0.5 * s12, 1.5 - 0.5 * s22))
+
+
+def rotvec_to_matrix(v) -> np.ndarray:
+    """Rotation matrix of a rotation vector (axis times angle, rad): :func:`mat3_from_rotvec` as a (3, 3) array."""
+    return np.array(mat3_from_rotvec(float(v[0]), float(v[1]), float(v[2]))).reshape(3, 3)
 
 
 def matrix_to_rotvec(r: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (inverse of :func:`rotvec_to_matrix` for angles below pi); scalar
-    arithmetic, like it."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r.tolist()
-    angle = math.acos(min(1.0, max(-1.0, (r00 + r11 + r22 - 1.0) / 2.0)))
-    k = 0.5 if angle < 1e-9 else angle / (2.0 * math.sin(angle))
-    return np.array([k * (r21 - r12), k * (r02 - r20), k * (r10 - r01)])
+    """Rotation vector of a rotation matrix: :func:`mat3_to_rotvec` of a (3, 3) array."""
+    return np.array(mat3_to_rotvec(np.ravel(r).tolist()))
 
 
 def matrix_to_quat(r: np.ndarray) -> tuple[float, float, float, float]:

@@ -38,6 +38,9 @@ class Telemetry:
     gyro: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Body angular rate from the modules' IMUs (their mean), rad/s, body frame (empty when not streamed). Mocap
     gives the pose; differentiating it for the rate is too late and too noisy for the attitude loop."""
+    gyro_age_s: float = 0.0
+    """How long before this telemetry the oldest module reading in ``gyro`` arrived, s (0 where the gyros are read
+    when asked, as in the simulator): beyond a few stream intervals the rate is old news, not the rate now."""
     module_gyros: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     """(n, 3) each module's gyro rotated into the body frame, rad/s (a rigid body: all alike up to noise and their
     delays; empty when not streamed)."""

@@ -530,6 +530,7 @@ class CrazyflieBackend(BackendBase):
                        for m, ok in zip(self._modules, fresh, strict=True))
         return Telemetry(stamp=float(heard.max()) if heard.size and np.isfinite(heard).any() else 0.0,
                          link_ok=bool(counted) and bool(np.all(fresh[counted])),
+                         gyro_age_s=float(now - heard[counted].min()) if counted else float("inf"),
                          motors=(thrust / self.module.c_f).reshape(-1), battery_v=self._battery.copy(),
                          gyro=rates.mean(axis=0), module_gyros=rates, link_latency_s=quality.latency_s,
                          link_loss=quality.loss, module_faults=faults)

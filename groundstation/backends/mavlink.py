@@ -81,6 +81,8 @@ class _Module:
         """Learnt from the first autopilot heartbeat."""
         self.component_id = mav.MAV_COMP_ID_AUTOPILOT1
         self.heard = -np.inf
+        self.gyro_heard = -np.inf
+        """When the newest ATTITUDE (the body rate) arrived, s."""
         self.battery_heard = -np.inf
         """When SYS_STATUS last came (it is slower than the rest: 10 Hz on PX4)."""
         self.armed = False
@@ -215,8 +217,10 @@ class MavlinkBackend(BackendBase):
         holding = not self._armed or all(m.armed for m in self._modules)
         rates = body_rates(self._rotations, self._gyro)
         heard = max((m.heard for m in self._modules), default=-np.inf)
+        gyro_heard = min((m.gyro_heard for m in self._modules), default=-np.inf)
         return Telemetry(stamp=float(heard) if np.isfinite(heard) else 0.0,
                          link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
+                         gyro_age_s=float(now - gyro_heard),
                          battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates)
 
     def disarm(self) -> None:
@@ -354,6 +358,7 @@ class MavlinkBackend(BackendBase):
                         m.stop_acked = m.stop_acked or self._stop_sent
                 elif kind == "ATTITUDE":
                     self._gyro[i] = mw.FRD_TO_FLU @ np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
+                    m.gyro_heard = now
                     m.up = mw.up_in_module(msg.roll, msg.pitch)
                 elif kind == "SERVO_OUTPUT_RAW":
                     # Outputs sent before the module saw the stop still show thrust; the disarm's ACK comes

@@ -45,7 +45,17 @@ import numpy as np
 from groundstation.assembly.module import GRAVITY
 from groundstation.control.state import RigidState
 from groundstation.estimation.measurement import PoseMeasurement
-from groundstation.rotations import matrix_to_rotvec, rotvec_to_matrix
+from groundstation.rotations import (
+    Mat3,
+    Vec3,
+    mat3_from_rotvec,
+    mat3_mul,
+    mat3_orthonormal,
+    mat3_tmul,
+    mat3_to_rotvec,
+    mat3_vec,
+    matrix_to_rotvec,
+)
 
 
 @dataclass(frozen=True)
@@ -91,6 +101,15 @@ class EstimatorSettings:
     """...plus the angle the body turns in this time, s: how far the gyros' and the poses' times may still disagree
     (``gyro_delay`` and the mocap's latency are configured, not measured; a link's delay varies). With 1 deg and
     10 ms, simulated Crazyflie modules saw 51 ms of rejected poses in a take-off (1.4 deg at ~40 deg/s)."""
+    gyro_stale_s: float = 0.03
+    """A gyro reading older than this is no longer news, s (its packets stopped: a radio gap, a starved link, a
+    module gone; Crazyflie and PX4 modules stream at 100 Hz or faster): the attitude is then held, not turned on at
+    the old rate, the body rate is unknown (zero to the controller) and the attitude's uncertainty grows by
+    ``unseen_rate`` (so the next poses correct it). Integrating a 110 deg/s reading held through a 100 ms gap
+    left the attitude 11 deg off, every later pose was rejected, and the assembly, flown on the phantom turn,
+    flipped (real firmware in the loop)."""
+    unseen_rate: float = 2.0
+    """How fast the body may turn, unseen, while the gyros are stale (std per axis), rad/s."""
     inconsistent_s: float = 0.05
     """Measurements rejected over this long on end are a fault, s (five samples at 100 Hz)."""
     history_s: float = 0.15
@@ -121,21 +140,37 @@ class Estimate:
 
 POSE_RATE_WINDOW_S = 0.05
 """Span of the poses :meth:`RigidBodyFilter.pose_rate` differentiates, s."""
-_ZERO = np.zeros(3)
-_ZERO.setflags(write=False)
-_GRAVITY_VECTOR = np.array([0.0, 0.0, GRAVITY])
-_THREE_HALVES = 1.5 * np.eye(3)
+_IDENTITY: Mat3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
-def _orthonormal(r: np.ndarray) -> np.ndarray:
-    """One Newton step back to a rotation (rounding drifts products of many small rotations off it)."""
-    return r @ (_THREE_HALVES - 0.5 * r.T @ r)
+def _step(p: Vec3, v: Vec3, a: Vec3, dt: float) -> tuple[Vec3, Vec3]:
+    """Position and velocity ``dt`` s on, at the constant acceleration ``a``."""
+    h = 0.5 * dt * dt
+    (px, py, pz), (vx, vy, vz), (ax, ay, az) = p, v, a
+    return ((px + vx * dt + ax * h, py + vy * dt + ay * h, pz + vz * dt + az * h),
+            (vx + ax * dt, vy + ay * dt, vz + az * dt))
+
+
+def _corrected(p: Vec3, v: Vec3, d: Vec3, cp: Vec3, cv: Vec3, cd: Vec3, tau: float) -> tuple[Vec3, Vec3, Vec3]:
+    """Position, velocity and disturbance with the correction ``(cp, cv, cd)`` made ``tau`` s before them, carried
+    through the model."""
+    h = 0.5 * tau * tau
+    (px, py, pz), (vx, vy, vz), (dx, dy, dz) = p, v, d
+    (cpx, cpy, cpz), (cvx, cvy, cvz), (cdx, cdy, cdz) = cp, cv, cd
+    return ((px + cpx + cvx * tau + cdx * h, py + cpy + cvy * tau + cdy * h, pz + cpz + cvz * tau + cdz * h),
+            (vx + cvx + cdx * tau, vy + cvy + cdy * tau, vz + cvz + cdz * tau),
+            (dx + cdx, dy + cdy, dz + cdz))
 
 
 class RigidBodyFilter:
     """See the module docstring. Call :meth:`predict` once per control period (it sets the time and the inputs),
     :meth:`correct` with every measurement in capture order, read :meth:`state`, and tell it the command sent
-    (:meth:`command`)."""
+    (:meth:`command`).
+
+    The state is kept in Python floats (3-tuples, :data:`~groundstation.rotations.Mat3`), not numpy arrays: the
+    work of a period is a few dozen operations on single 3-vectors and rotations, where numpy's overhead per call,
+    not the arithmetic, was the cost (``python -m benchmarks.estimator``, 2026-12-02: 139 us a period in numpy,
+    54 us in floats). Arrays are made only for the outputs."""
 
     def __init__(self, settings: EstimatorSettings, mass: float) -> None:
         self.settings = settings
@@ -147,16 +182,18 @@ class RigidBodyFilter:
         self._rp, self._ra = s.position_noise ** 2, s.attitude_noise ** 2
         self._t: float | None = None
         """Time of the estimate, s (the latest predict or the first measurement)."""
-        self._gyro: np.ndarray | None = None
-        self._force: np.ndarray | None = None
-        self._p = np.zeros(3)
-        self._v = np.zeros(3)
-        self._d = np.zeros(3)
-        self._r = np.eye(3)
+        self._gyro: Vec3 | None = None
+        """The body rate the gyros give now (None: no reading, or a stale one), rad/s, body frame."""
+        self._specific_force: Vec3 | None = None
+        """The commanded body force over the mass, m/s^2, body frame (None: motors off)."""
+        self._p: Vec3 = (0.0, 0.0, 0.0)
+        self._v: Vec3 = (0.0, 0.0, 0.0)
+        self._d: Vec3 = (0.0, 0.0, 0.0)
+        self._r: Mat3 = _IDENTITY
         """Attitude at the estimate's time."""
-        self._r_gyro = np.eye(3)
+        self._r_gyro: Mat3 = _IDENTITY
         """Attitude ``gyro_delay`` earlier: where the gyros have got to."""
-        self._b = np.zeros(3)
+        self._b: Vec3 = (0.0, 0.0, 0.0)
         self._pt = [0.0] * 6
         """Translation covariance per axis: pp, pv, pd, vv, vd, dd."""
         self._pa = [0.0] * 3
@@ -166,7 +203,7 @@ class RigidBodyFilter:
         self._history: deque[list] = deque()
         """[t, p, v, d, R, a] of past estimates, oldest first; ``a``: the acceleration of the step that ended
         there."""
-        self._a = np.zeros(3)
+        self._a: Vec3 = (0.0, 0.0, 0.0)
         """The acceleration of the latest step, world frame, m/s^2."""
         self.initialized = False
         self.fused = 0
@@ -178,27 +215,34 @@ class RigidBodyFilter:
         self.last_rejection = ""
         self.last_fused_t = -math.inf
         """Capture time of the newest fused measurement, s."""
-        self._last_pose: PoseMeasurement | None = None
-        """The measurement before (to tell a frozen stream)."""
+        self._last_pose: tuple[float, list[float], list[float]] | None = None
+        """(t, position, rotation's entries) of the measurement before (to tell a frozen stream)."""
         self._fused_poses: deque[PoseMeasurement] = deque()
         """The fused measurements of the last ``POSE_RATE_WINDOW_S`` (:meth:`pose_rate`)."""
         self._rejecting_since: float | None = None
         """Capture time of the first measurement of the current run of rejections."""
         self._fault = ""
-        self.innovation_position = _ZERO
-        """The newest measurement's position less the estimate's at its capture time, m, world frame."""
-        self.innovation_attitude = _ZERO
-        """...and its attitude relative to the estimate's, rotation vector, rad, body frame."""
+        self._innovation_position: Vec3 = (0.0, 0.0, 0.0)
+        self._innovation_attitude: Vec3 = (0.0, 0.0, 0.0)
+        self._state: RigidState | None = None
+        """The state handed out since the estimate last changed: the flight reads it twice a period (to control, to
+        log), and its arrays cost microseconds."""
 
     # -- inputs -----------------------------------------------------------------------------------------------------
-    def predict(self, t: float, gyro: np.ndarray | None) -> None:
+    def predict(self, t: float, gyro: np.ndarray | None, gyro_age: float = 0.0) -> None:
         """Advance the estimate to ``t`` (s), turning it at ``gyro``, the body rate the modules report now (rad/s,
         body frame: the newest reading is the best one for the time since the last call; None: none streamed,
-        the attitude is held between measurements), under the last :meth:`command`."""
+        the attitude is held between measurements), under the last :meth:`command`. ``gyro_age``: how long ago
+        the reading arrived, s (beyond ``gyro_stale_s`` it is stale)."""
+        self._state = None
+        g = None if gyro is None else np.asarray(gyro, float).tolist()
         # A reading that is not a rate (a module's NaN) is no reading: the attitude is held, the mocap corrects it.
-        self._gyro = None if gyro is None or len(gyro) != 3 or not all(map(math.isfinite, gyro)) \
-            else np.asarray(gyro, float)
+        g = tuple(g) if g is not None and len(g) == 3 and all(map(math.isfinite, g)) else None
+        unseen = gyro_age - self.settings.gyro_stale_s if g is not None else 0.0
+        self._gyro = None if unseen > 0.0 else g  # never heard (an infinite age): none streamed
         if self.initialized and self._t is not None and t > self._t:
+            if 0.0 < unseen < math.inf:
+                self._unseen_turn(max(unseen - (t - self._t), 0.0), unseen)
             self._propagate(t - self._t)
             self._t = t
             self._remember()
@@ -214,25 +258,34 @@ class RigidBodyFilter:
     def command(self, force: np.ndarray | None) -> None:
         """The body force of the command just sent, N, body frame (the allocation's force rows times the rotor
         inputs; None: motors off); it acts until the next call."""
-        self._force = None if force is None else np.asarray(force, float)
+        if force is None:
+            self._specific_force = None
+        else:
+            fx, fy, fz = np.asarray(force, float).tolist()
+            m = self.mass
+            self._specific_force = (fx / m, fy / m, fz / m)
 
     def _propagate(self, dt: float) -> None:
-        # New arrays, never changed in place: the history and the states handed out share them.
-        # motors off (no force): resting (the ground holds it) or carried
-        a = self._d if self._force is None else self._r @ (self._force / self.mass) - _GRAVITY_VECTOR + self._d
+        dx, dy, dz = d = self._d
+        if self._specific_force is None:  # motors off: resting (the ground holds it) or carried
+            a = d
+        else:
+            ax, ay, az = mat3_vec(self._r, self._specific_force)
+            a = (ax + dx, ay + dy, az - GRAVITY + dz)
         self._a = a
-        h = 0.5 * dt * dt
-        self._p = self._p + self._v * dt + a * h
-        self._v = self._v + a * dt
+        self._p, self._v = _step(self._p, self._v, a, dt)
         if self.ground_z is not None and self._p[2] < self.ground_z:  # the ground holds it
-            self._p = np.array([self._p[0], self._p[1], self.ground_z])
-            self._v = np.array([self._v[0], self._v[1], max(float(self._v[2]), 0.0)])
-        if self._gyro is not None:
-            rate = self._gyro - self._b
-            self._r_gyro = self._r_gyro @ rotvec_to_matrix(rate * dt)
+            self._p = (self._p[0], self._p[1], self.ground_z)
+            self._v = (self._v[0], self._v[1], max(self._v[2], 0.0))
+        rate = self._rate()
+        if rate is not None:
+            wx, wy, wz = rate
+            self._r_gyro = mat3_mul(self._r_gyro, mat3_from_rotvec(wx * dt, wy * dt, wz * dt))
             delay = self.settings.gyro_delay
-            self._r = self._r_gyro @ rotvec_to_matrix(rate * delay) if delay > 0.0 else self._r_gyro
+            self._r = mat3_mul(self._r_gyro, mat3_from_rotvec(wx * delay, wy * delay, wz * delay)) if delay > 0.0 \
+                else self._r_gyro
         pp, pv, pd, vv, vd, dd = self._pt
+        h = 0.5 * dt * dt
         r00, r01, r02 = pp + dt * pv + h * pd, pv + dt * vv + h * vd, pd + dt * vd + h * dd
         r11, r12 = vv + dt * vd, vd + dt * dd
         qa = self._qa
@@ -240,6 +293,18 @@ class RigidBodyFilter:
                     r11 + dt * r12 + qa * dt, r12, dd + self._qd * dt]
         tt, tb, bb = self._pa
         self._pa = [tt - 2.0 * dt * tb + dt * dt * bb + self._qg * dt, tb - dt * bb, bb + self._qb * dt]
+
+    def _unseen_turn(self, tau0: float, tau1: float) -> None:
+        """Grow the attitude variance for a step from ``tau0`` to ``tau1`` s past ``gyro_stale_s`` on a stale
+        reading: the body may have turned at ``unseen_rate`` throughout, so the std grows with the stale time."""
+        self._pa[0] += self.settings.unseen_rate ** 2 * (tau1 * tau1 - tau0 * tau0)
+
+    def _rate(self) -> Vec3 | None:
+        """The body rate: the gyros' less their bias, rad/s (None: no reading)."""
+        if self._gyro is None:
+            return None
+        (gx, gy, gz), (bx, by, bz) = self._gyro, self._b
+        return gx - bx, gy - by, gz - bz
 
     def _remember(self) -> None:
         hist = self._history
@@ -251,14 +316,15 @@ class RigidBodyFilter:
     def correct(self, m: PoseMeasurement) -> bool:
         """Fuse one measurement (True), or reject it (False: counted, :attr:`last_rejection` says why). The first
         one starts the estimate."""
-        if not (math.isfinite(m.t) and all(map(math.isfinite, m.position)) and np.isfinite(m.rotation).all()):
+        position = np.asarray(m.position, float).tolist()
+        rotation = np.asarray(m.rotation, float).ravel().tolist()
+        if not (math.isfinite(m.t) and all(map(math.isfinite, position)) and all(map(math.isfinite, rotation))):
             return self._reject(m.t, "not finite")
         if not self.initialized:
-            self._start(m)
+            self._start(m, position, rotation)
             return True
-        last, self._last_pose = self._last_pose, m
-        if last is not None and m.t > last.t and np.array_equal(m.position, last.position) \
-                and np.array_equal(m.rotation, last.rotation):
+        last, self._last_pose = self._last_pose, (m.t, position, rotation)
+        if last is not None and m.t > last[0] and position == last[1] and rotation == last[2]:
             # A camera system measures with noise: the same pose twice to the last bit, newly timed, is a stream
             # that froze (a lost body held, a stuck bridge), whatever the body does meanwhile.
             return self._reject(m.t, "the same pose again, to the last bit: a frozen stream")
@@ -269,23 +335,25 @@ class RigidBodyFilter:
         hist = self._history
         tm, p_m, v_m, d_m, r_m, _ = hist[at]
         a = hist[at + 1][5] if at + 1 < len(hist) else self._a  # what the estimate's step from there assumed
-        tau = m.t - tm
-        p_m, v_m = p_m + v_m * tau + a * (0.5 * tau * tau), v_m + a * tau  # the estimate at the capture time
+        p_m, v_m = _step(p_m, v_m, a, m.t - tm)  # the estimate at the capture time
         s = self.settings
-        dp = m.position - p_m
+        dp = (position[0] - p_m[0], position[1] - p_m[1], position[2] - p_m[2])
         s_p = self._pt[0] + self._rp
-        miss = float(math.sqrt(dp @ dp))
-        self.innovation_position, self.innovation_attitude = dp, _ZERO
+        miss = math.sqrt(dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2])
+        self._innovation_position, self._innovation_attitude = dp, (0.0, 0.0, 0.0)
         if miss > max(s.gate_sigma * math.sqrt(s_p), s.position_gate_floor):
             self._pt = [c * s.rejection_inflation for c in self._pt]
             return self._reject(m.t, f"position {miss * 100:.1f} cm off the estimate")
-        if self._gyro is not None and m.t > tm:
-            r_m = r_m @ rotvec_to_matrix((self._gyro - self._b) * (m.t - tm))
-        dth = matrix_to_rotvec(r_m.T @ m.rotation)
+        turning = self._rate()
+        if turning is not None and m.t > tm:
+            tau = m.t - tm
+            r_m = mat3_mul(r_m, mat3_from_rotvec(turning[0] * tau, turning[1] * tau, turning[2] * tau))
+        dth = mat3_to_rotvec(mat3_tmul(r_m, rotation))
         s_a = self._pa[0] + self._ra
-        off = float(math.sqrt(dth @ dth))
-        rate = float(math.sqrt(self._gyro @ self._gyro)) if self._gyro is not None else 0.0
-        self.innovation_attitude = dth
+        off = math.sqrt(dth[0] * dth[0] + dth[1] * dth[1] + dth[2] * dth[2])
+        gyro = self._gyro
+        rate = math.sqrt(gyro[0] * gyro[0] + gyro[1] * gyro[1] + gyro[2] * gyro[2]) if gyro is not None else 0.0
+        self._innovation_attitude = dth
         if off > max(s.gate_sigma * math.sqrt(s_a), s.attitude_gate_floor + rate * s.gyro_timing):
             return self._reject(m.t, f"attitude {math.degrees(off):.1f} deg off the gyros' prediction")
         cp, cv, cd, ct = self._fuse(m.t, dp, s_p, dth, s_a)
@@ -293,7 +361,8 @@ class RigidBodyFilter:
             # The corrected estimate at the capture time joins the history: the next pose captured before the next
             # entry is compared with it, not with the uncorrected one before (after a pause between periods, a
             # burst of poses all fell between two entries and each was compared with the same stale estimate).
-            hist.insert(at + 1, [m.t, p_m + cp, v_m + cv, d_m + cd, r_m @ rotvec_to_matrix(ct), a])
+            hist.insert(at + 1, [m.t, *_corrected(p_m, v_m, d_m, cp, cv, cd, 0.0),
+                                 mat3_mul(r_m, mat3_from_rotvec(*ct)), a])
         self._rejecting_since = None
         self.fused += 1
         self.last_fused_t = max(self.last_fused_t, m.t)
@@ -316,13 +385,14 @@ class RigidBodyFilter:
             return None
         return matrix_to_rotvec(poses[0].rotation.T @ poses[-1].rotation) / (poses[-1].t - poses[0].t)
 
-    def _start(self, m: PoseMeasurement) -> None:
+    def _start(self, m: PoseMeasurement, position: list[float], rotation: list[float]) -> None:
         s = self.settings
-        self._p, self._v, self._d = np.array(m.position, float), np.zeros(3), np.zeros(3)
-        self._r, self._b = np.array(m.rotation, float), np.zeros(3)
-        self._r_gyro = self._r.copy()
+        self._p, self._v, self._d = tuple(position), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        self._r = self._r_gyro = tuple(rotation)
+        self._b = (0.0, 0.0, 0.0)
         self._pt = [self._rp, 0.0, 0.0, s.initial_velocity ** 2, 0.0, s.initial_disturbance ** 2]
         self._pa = [self._ra, 0.0, s.initial_bias ** 2]
+        self._state = None
         now = self._t
         self._t = m.t
         self.initialized = True
@@ -345,35 +415,34 @@ class RigidBodyFilter:
                 return i
         return None
 
-    def _fuse(self, tm: float, dp: np.ndarray, s_p: float, dth: np.ndarray, s_a: float) -> tuple:
+    def _fuse(self, tm: float, dp: Vec3, s_p: float, dth: Vec3, s_a: float) -> tuple[Vec3, Vec3, Vec3, Vec3]:
         """Correct the estimate (now, and the history after ``tm``) by the innovations at ``tm``; returns the
         correction there (position, velocity, disturbance, attitude rotation vector)."""
         pp, pv, pd, vv, vd, dd = self._pt
         kp, kv, kd = pp / s_p, pv / s_p, pd / s_p
-        cp, cv, cd = kp * dp, kv * dp, kd * dp
+        dx, dy, dz = dp
+        cp, cv, cd = (kp * dx, kp * dy, kp * dz), (kv * dx, kv * dy, kv * dz), (kd * dx, kd * dy, kd * dz)
         tt, tb, bb = self._pa
         kt, kb = tt / s_a, tb / s_a
-        ct, cb = kt * dth, kb * dth
+        ex, ey, ez = dth
+        ct, cb = (kt * ex, kt * ey, kt * ez), (kb * ex, kb * ey, kb * ez)
         # The correction made at tm, carried along every estimate since. The attitude's is one rotation for all:
         # what the bias correction adds over the few ms of history is below 1e-6 rad (and the rotation costs).
-        dr = rotvec_to_matrix(ct - cb * max(self._t - tm, 0.0))
+        now = max(self._t - tm, 0.0)
+        dr = mat3_from_rotvec(ct[0] - cb[0] * now, ct[1] - cb[1] * now, ct[2] - cb[2] * now)
         for entry in reversed(self._history):
             tau = entry[0] - tm
             if tau < 0.0:
                 break
-            entry[1] = entry[1] + cp + cv * tau + cd * (0.5 * tau * tau)
-            entry[2] = entry[2] + cv + cd * tau
-            entry[3] = entry[3] + cd
-            entry[4] = entry[4] @ dr
-        tau = max(self._t - tm, 0.0)
-        self._p = self._p + cp + cv * tau + cd * (0.5 * tau * tau)
-        self._v = self._v + cv + cd * tau
-        self._d = self._d + cd
-        self._r_gyro = _orthonormal(self._r_gyro @ dr)
-        self._r = _orthonormal(self._r @ dr)
-        self._b = self._b + cb
+            entry[1], entry[2], entry[3] = _corrected(entry[1], entry[2], entry[3], cp, cv, cd, tau)
+            entry[4] = mat3_mul(entry[4], dr)
+        self._p, self._v, self._d = _corrected(self._p, self._v, self._d, cp, cv, cd, now)
+        self._r_gyro = mat3_orthonormal(mat3_mul(self._r_gyro, dr))
+        self._r = mat3_orthonormal(mat3_mul(self._r, dr))
+        self._b = (self._b[0] + cb[0], self._b[1] + cb[1], self._b[2] + cb[2])
         self._pt = [pp - pp * kp, pv - pv * kp, pd - pd * kp, vv - pv * kv, vd - pd * kv, dd - pd * kd]
         self._pa = [tt - tt * kt, tb - tb * kt, bb - tb * kb]
+        self._state = None
         return cp, cv, cd, ct
 
     def _reject(self, t: float, why: str) -> bool:
@@ -387,6 +456,16 @@ class RigidBodyFilter:
         return False
 
     # -- outputs ----------------------------------------------------------------------------------------------------
+    @property
+    def innovation_position(self) -> np.ndarray:
+        """The newest measurement's position less the estimate's at its capture time, m, world frame."""
+        return np.array(self._innovation_position)
+
+    @property
+    def innovation_attitude(self) -> np.ndarray:
+        """...and its attitude relative to the estimate's, rotation vector, rad, body frame."""
+        return np.array(self._innovation_attitude)
+
     def fault(self) -> str:
         """Why the measurements cannot be trusted ("" while they can); latched."""
         return self._fault
@@ -398,10 +477,12 @@ class RigidBodyFilter:
     def state(self) -> RigidState | None:
         """The state at the latest :meth:`predict` time (None before the first measurement); the body rate is the
         gyros' less their bias."""
-        if not self.initialized:
-            return None
-        omega = self._gyro - self._b if self._gyro is not None else np.zeros(3)
-        return RigidState(self._p, self._v, self._r, omega)  # never changed in place: shared
+        if self._state is None and self.initialized:
+            omega = self._rate() or (0.0, 0.0, 0.0)
+            # One array for the four, handed out as views of its rows (numpy's cost is per call, not per element).
+            rows = np.array(self._p + self._v + omega + self._r).reshape(6, 3)
+            self._state = RigidState(rows[0], rows[1], rows[3:], rows[2])
+        return self._state  # never changed in place: shared
 
     def estimate(self) -> Estimate | None:
         state = self.state()
@@ -411,4 +492,4 @@ class RigidBodyFilter:
         sigma_theta = math.sqrt(self._pa[0])
         blind = max(0.0, self._t - self.last_fused_t)
         return Estimate(self._t, state, math.sqrt(pp) + 0.5 * GRAVITY * sigma_theta * blind * blind, math.sqrt(vv),
-                        sigma_theta, self._b, self._d)
+                        sigma_theta, np.array(self._b), np.array(self._d))

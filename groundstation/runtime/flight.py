@@ -350,7 +350,7 @@ class Flight:
         gyro = telemetry.gyro if telemetry.gyro.size == 3 else None
         if gyro is not None and len(telemetry.module_gyros) > 1:
             gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now))
-        est.predict(now, gyro)
+        est.predict(now, gyro, telemetry.gyro_age_s)
         for m in self.pose.measurements():
             est.correct(m)
         return est.state(), est.age(now)
