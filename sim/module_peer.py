@@ -8,6 +8,7 @@ links, serves its packets and says what reaches the rotors.
 
 from __future__ import annotations
 
+import gc
 import threading
 import time
 from dataclasses import dataclass
@@ -17,11 +18,24 @@ import numpy as np
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
+from groundstation.backends.base import Telemetry
 from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
 from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, open_session
+from groundstation.runtime.loop import realtime_priority
 from sim.pybullet_backend import PyBulletBackend, SimConfig
 from sim.virtual_mocap import VirtualMocap
+
+WORLD_PRIORITY = 20
+"""SCHED_FIFO priority of the physics (above the ground station's loop, 10): the world it stands for is never
+late. At normal priority a 1 kHz firmware-in-the-loop peer fell 25 ms behind several times a minute on an idle
+2-core machine, and each time the firmware's answers came that much later (link round trips of 26-46 ms: the
+flight stopped on a degraded link)."""
+MAX_LAG_S = 0.025
+"""How far the physics may fall behind its real-time schedule before the schedule moves on (the world pauses), s.
+Behind it, the peer steps without sleeping to catch up; each pose then leaves that much later than its (truthful)
+stamp, and the ground station rejects a pose more than 50 ms later than the stream's fastest (``StampClockSettings``):
+1 kHz firmware-in-the-loop peers on 2 cores lagged up to 100 ms, and a third of their poses were refused."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +84,9 @@ class ModulePeer:
         sim_config = SimConfig(physics_hz=c.physics_hz, motor_time_constant=c.motor_time_constant,
                                mocap_rate_hz=0.0)  # the virtual mocap measures
         self.sim = PyBulletBackend(assembly, sim_config, observers=[self._observe])
+        self._sensed: tuple[float, Telemetry] | None = None
+        """(simulated time s, the physics' sensors then): read once per step, every module measures that instant
+        (and a 1 kHz firmware-in-the-loop peer read them eight times a step: a third of its time)."""
         self._last_velocity: tuple[float, np.ndarray] | None = None
         """(time s, body velocity m/s) at the previous physics step, for the accelerometers."""
         self._t0 = time.monotonic()
@@ -80,6 +97,10 @@ class ModulePeer:
         self.stop_event = threading.Event()
         self.packets = 0
         """Packets received from the ground station."""
+        self.pauses = 0
+        """Times the physics fell more than ``MAX_LAG_S`` behind its schedule and the world paused."""
+        self.realtime = False
+        """The physics ran under real-time scheduling."""
 
     # -- per protocol -------------------------------------------------------------------------------------------
     def _open_links(self) -> None:
@@ -140,7 +161,19 @@ class ModulePeer:
         self.sim.close()
 
     def run(self, duration: float | None = None) -> None:
-        """Simulate in real time until :attr:`stop_event` is set (or ``duration`` s passed)."""
+        """Simulate in real time until :attr:`stop_event` is set (or ``duration`` s passed), under SCHED_FIFO at
+        :data:`WORLD_PRIORITY` where permitted (:attr:`realtime` says whether it was)."""
+        # Everything allocated so far (PyBullet, Zenoh, numpy, the firmware models) is frozen out of the cyclic
+        # collector: its oldest-generation passes, scanning all of it, held the physics up for tens of ms.
+        gc.collect()
+        gc.freeze()
+        try:
+            with realtime_priority(WORLD_PRIORITY) as self.realtime:
+                self._run(duration)
+        finally:
+            gc.unfreeze()
+
+    def _run(self, duration: float | None) -> None:
         dt = 1.0 / self.config.physics_hz
         self._wall_offset = time.time() - time.monotonic()
         self._t0 = time.monotonic() - self.sim.time
@@ -155,12 +188,19 @@ class ModulePeer:
             remaining = self._t0 + k * dt - time.monotonic()
             if remaining > 0:
                 time.sleep(remaining)
-            elif remaining < -0.1:  # far behind (machine stalled): resynchronise rather than race
+            elif remaining < -MAX_LAG_S:  # behind (machine stalled): resynchronise rather than race
                 self._t0 -= remaining
+                self.pauses += 1
+
+    def sensors(self) -> Telemetry:
+        """What the physics' sensors give at this step (gyro, rotor inputs after the motor lag)."""
+        if self._sensed is None or self._sensed[0] != self.sim.time:
+            self._sensed = (self.sim.time, self.sim.telemetry())
+        return self._sensed[1]
 
     def module_gyro(self, i: int) -> np.ndarray:
         """Module i's gyro: the body rate in the module's frame, rad/s."""
-        return self.module_frame(i, self.sim.telemetry().gyro)
+        return self.module_frame(i, self.sensors().gyro)
 
     def specific_force(self) -> np.ndarray:
         """The body's specific force (acceleration less gravity) in the body frame, in g, from its velocity over
@@ -183,7 +223,7 @@ class ModulePeer:
 
     def module_motors(self, i: int) -> np.ndarray:
         """Module i's rotor inputs as the physics applies them (after the motor lag), rad^2/s^2."""
-        return self.sim.telemetry().motors[4 * i:4 * i + 4]
+        return self.sensors().motors[4 * i:4 * i + 4]
 
     def __enter__(self):
         self.open()

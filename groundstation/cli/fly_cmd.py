@@ -285,5 +285,6 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
         peer.run(duration)
     finally:
         peer.close()
-    click.echo(json.dumps({"packets": peer.packets, "simulated_s": peer.sim.time}))
+    click.echo(json.dumps({"packets": peer.packets, "simulated_s": peer.sim.time, "world_pauses": peer.pauses,
+                           "realtime": peer.realtime}))
     return 0

@@ -80,8 +80,6 @@ from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 from groundstation.runtime.placement import placement_issues
 
 PREFLIGHT_TIMEOUT_S = 3.0
-PREFLIGHT_WATCH_S = 1.0
-"""Preflight watches the mocap stream at least this long (a second publisher on the key shows up), s."""
 GIL_SWITCH_S = 1e-4
 STILL_SPEED = 0.2
 """Preflight: the estimated speed must be below this (mocap noise alone gives a few cm/s), m/s."""
@@ -455,7 +453,7 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
     _stop_if_asked(requests)
     # The assembly rests: the estimator, on mocap alone (no command, no gyro yet), says where it is, how it is
     # oriented and whether it moves.
-    while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < PREFLIGHT_WATCH_S)
+    while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < m.preflight_watch_s)
            and time.monotonic() < deadline):
         world.settle(0.02)
         time.sleep(0.005)

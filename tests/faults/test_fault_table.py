@@ -165,7 +165,8 @@ def f_mocap_malformed(cli, tmp_path):
 
 @fault("mocap: a second publisher already there before take-off", "preflight refuses, never armed")
 def f_mocap_attacker_before_take_off(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": "latency_s = 0.005\nlisten = true"})
+    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": "latency_s = 0.005\nlisten = true",
+                                                     "[mocap]\n": "[mocap]\npreflight_watch_s = 1.0\n"})  # shipped
     attacker = subprocess.Popen([sys.executable, "-m", "tests.faults.hostile_mocap", "--connect", HOSTILE,
                                  "--mode", "second", "--after", "0", "--duration", "30"], cwd=ROOT,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

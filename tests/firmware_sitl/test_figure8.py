@@ -8,12 +8,12 @@ import contextlib
 import json
 import subprocess
 import sys
-import time
 
 import pytest
 
 from tests.firmware_sitl.conftest import ROOT, sitl_binary
 from tests.firmware_sitl.test_conformance import TOY
+from tests.peers import peer_process
 
 SHIPPED_PORT, MOCAP = 19850, "tcp/127.0.0.1:7448"
 
@@ -32,19 +32,17 @@ def flight_config(tmp_path, platform: str, port: int, mocap: str):
 
 
 @contextlib.contextmanager
-def sim_peer(platform: str, port: int, mocap: str, *extra: str):
-    peer = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer",
-                             str(ROOT / "configs/assemblies" / TOY[platform]), "--platform", platform,
-                             "--port", str(port), "--mocap", mocap, *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)
+def sim_peer(tmp_path, platform: str, port: int, mocap: str, *extra: str):
+    """``groundstation sim-peer`` for ``platform``'s V, started as the other flight tests start theirs (at the world's
+    priority, ready when it says so); it must end cleanly."""
+    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies" / TOY[platform]), "--platform", platform,
+                        "--port", str(port), "--mocap", mocap, *extra)
     try:
-        assert peer.poll() is None, peer.communicate()[1]
         yield peer
     finally:
         peer.terminate()
-        _, err = peer.communicate(timeout=20)
-        assert peer.returncode == 0, err
+        peer.wait(timeout=20)
+        assert peer.returncode == 0, f"sim-peer exited with {peer.returncode}"
 
 
 def groundstation(*args: str) -> subprocess.CompletedProcess:
@@ -58,7 +56,7 @@ def test_figure8_against_real_firmware_modules(platform, port, tmp_path):
     mocap = f"tcp/127.0.0.1:{7624 + port % 19640 // 10}"
     cfg = flight_config(tmp_path, platform, port, mocap)
     firmware = []
-    with sim_peer(platform, port, mocap, "--firmware", str(binary), "--state-dir", str(tmp_path / "modules")):
+    with sim_peer(tmp_path, platform, port, mocap, "--firmware", str(binary), "--state-dir", str(tmp_path / "modules")):
         applied = groundstation("params", str(cfg), "--apply")
         assert applied.returncode == 0, applied.stdout + applied.stderr  # tumble detection off, stored
         for _ in range(2):  # twice in a row: a normal landing disarms without latching anything
@@ -67,7 +65,7 @@ def test_figure8_against_real_firmware_modules(platform, port, tmp_path):
             assert flown.returncode == 0 and summary["phase"] == "done" and summary["reason"] == "", flown.stderr
             firmware.append(summary["pos_rmse_m"])
     params = str(ROOT / "firmware_params/crazyflie.toml")
-    with sim_peer(platform, port, mocap, "--params", params):
+    with sim_peer(tmp_path, platform, port, mocap, "--params", params):
         flown = groundstation("fly", str(cfg), "--json")
         model = json.loads(flown.stdout)
         assert flown.returncode == 0 and model["phase"] == "done", flown.stderr

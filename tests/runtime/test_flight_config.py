@@ -194,6 +194,12 @@ def test_mocap_noise_beyond_any_mocap_is_refused(key, value):
         config.validate(FlightConfig, {"assembly": "x", "mocap": {key: value}})
 
 
+@pytest.mark.parametrize("value, bound", [(0.1, "greater than or equal to 0.2"), (2.5, "less than or equal to 2")])
+def test_a_preflight_watch_too_short_to_see_a_second_publisher_or_beyond_the_wait_is_refused(value, bound):
+    with pytest.raises(ConfigError, match=rf"mocap.preflight_watch_s: .*{bound}"):
+        config.validate(FlightConfig, {"assembly": "x", "mocap": {"preflight_watch_s": value}})
+
+
 def test_cross_key_bounds_just_inside():
     toy, _ = load_assembly(TOY)
     assert _issue(FlightConfig(assembly="x"), toy.inertia, mocap={"latency_s": 0.23}, trajectory={"roll_deg": 74.0},
