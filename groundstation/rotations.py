@@ -38,22 +38,33 @@ def mat3_from_rotvec(x: float, y: float, z: float) -> Mat3:
             xz - s * y, yz + s * x, 1.0 - c * (x * x + y * y))
 
 
+HALF_TURN_BRANCH = 3.0
+"""Above this angle, rad, the axis comes from the rotation's symmetric part (its antisymmetric part, 2 sin(angle),
+is then below 0.29 and vanishes at pi)."""
+
+
 def mat3_to_rotvec(r: Mat3) -> Vec3:
     """Rotation vector of a rotation matrix (inverse of :func:`mat3_from_rotvec` for angles below pi)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-    angle = math.acos(min(1.0, max(-1.0, (r00 + r11 + r22 - 1.0) / 2.0)))
-    if angle > math.pi - 1e-4:
+    wx, wy, wz = r21 - r12, r02 - r20, r10 - r01  # 2 sin(angle) axis
+    sin2 = math.sqrt(wx * wx + wy * wy + wz * wz)
+    cos = (r00 + r11 + r22 - 1.0) / 2.0
+    angle = math.atan2(0.5 * sin2, cos)  # accurate at every angle, unlike acos near 0 and pi
+    if angle > HALF_TURN_BRANCH:
         # Near a half turn the antisymmetric part vanishes (an exact one gave a zero vector: a pose flipped by 180
-        # deg, a mocap rigid body defined upside down, passed every attitude gate); the axis is in r = 2 a a^T - I.
-        diag = ((r00 + 1.0) / 2.0, (r11 + 1.0) / 2.0, (r22 + 1.0) / 2.0)
+        # deg, a mocap rigid body defined upside down, passed every attitude gate): the axis is in the symmetric
+        # part, r + r^T = 2 cos I + 2 (1 - cos) a a^T; the antisymmetric part gives only the sense.
+        c1 = 1.0 - cos
+        diag = ((r00 - cos) / c1, (r11 - cos) / c1, (r22 - cos) / c1)
         i = max(range(3), key=diag.__getitem__)
-        sym = ((r00, r01 + r10, r02 + r20), (r01 + r10, r11, r12 + r21), (r02 + r20, r12 + r21, r22))
+        sym = ((2.0 * r00, r01 + r10, r02 + r20), (r01 + r10, 2.0 * r11, r12 + r21), (r02 + r20, r12 + r21, 2.0 * r22))
         ai = math.sqrt(max(diag[i], 0.0))
-        axis = [sym[i][j] / (4.0 * ai) if j != i else ai for j in range(3)]
-        sign = -1.0 if (r21 - r12, r02 - r20, r10 - r01)[i] < 0.0 else 1.0  # the turn's sense, while it shows
-        return (sign * angle * axis[0], sign * angle * axis[1], sign * angle * axis[2])
-    k = 0.5 if angle < 1e-9 else angle / (2.0 * math.sin(angle))
-    return (k * (r21 - r12), k * (r02 - r20), k * (r10 - r01))
+        axis = [sym[i][j] / (2.0 * c1 * ai) if j != i else ai for j in range(3)]
+        norm = math.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2)
+        k = (-angle if (wx, wy, wz)[i] < 0.0 else angle) / norm
+        return (k * axis[0], k * axis[1], k * axis[2])
+    k = 0.5 if sin2 < 1e-12 else angle / sin2
+    return (k * wx, k * wy, k * wz)
 
 
 def mat3_mul(a: Mat3, b: Mat3) -> Mat3:

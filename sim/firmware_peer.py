@@ -159,15 +159,13 @@ class FirmwareCrazyflies(ModulePeer):
 
     def _serve(self, now: float) -> None:
         specific_force = self.specific_force()
-        omega = self.sensors().gyro
         for i, p in enumerate(self._procs):
             if not p.alive():
                 if p.proc.returncode == REBOOT_STATUS:
                     p.start()  # a reboot: the same links, the stored parameters
                 p.info = 0  # a dead process: its link is silent, its motors stop, nothing about it is known
                 continue
-            self._send_sensors(p, self.module_frame(i, specific_force), self.module_frame(i, omega),
-                               self.module_rpm(i))
+            self._send_sensors(p, self.module_frame(i, specific_force), self.module_gyro(i), self.module_rpm(i))
             p.receive()
 
     def _rotor_inputs(self, now: float) -> np.ndarray:

@@ -85,8 +85,8 @@ class ModulePeer:
                                mocap_rate_hz=0.0)  # the virtual mocap measures
         self.sim = PyBulletBackend(assembly, sim_config, observers=[self._observe])
         self._sensed: tuple[float, Telemetry] | None = None
-        """(simulated time s, the physics' sensors then): read once per step, every module measures that instant
-        (and a 1 kHz firmware-in-the-loop peer read them eight times a step: a third of its time)."""
+        """(simulated time s, the physics' telemetry then): the motors read once per step (a 1 kHz
+        firmware-in-the-loop peer read them eight times a step: a third of its time)."""
         self._last_velocity: tuple[float, np.ndarray] | None = None
         """(time s, body velocity m/s) at the previous physics step, for the accelerometers."""
         self._t0 = time.monotonic()
@@ -160,20 +160,22 @@ class ModulePeer:
             self._session = None
         self.sim.close()
 
-    def run(self, duration: float | None = None) -> None:
-        """Simulate in real time until :attr:`stop_event` is set (or ``duration`` s passed), under SCHED_FIFO at
-        :data:`WORLD_PRIORITY` where permitted (:attr:`realtime` says whether it was)."""
-        # Everything allocated so far (PyBullet, Zenoh, numpy, the firmware models) is frozen out of the cyclic
-        # collector: its oldest-generation passes, scanning all of it, held the physics up for tens of ms.
+    def run_as_world(self, duration: float | None = None) -> None:
+        """:meth:`run` as the ``sim-peer`` process does: under SCHED_FIFO at :data:`WORLD_PRIORITY` where permitted
+        (:attr:`realtime` says whether it was), the heap allocated so far frozen out of the cyclic collector (its
+        oldest-generation passes, scanning PyBullet, Zenoh and numpy, held the physics up for tens of ms). Both
+        are the process's business: a peer run in a thread of a flight's process would share them with the
+        flight's own."""
         gc.collect()
         gc.freeze()
         try:
             with realtime_priority(WORLD_PRIORITY) as self.realtime:
-                self._run(duration)
+                self.run(duration)
         finally:
             gc.unfreeze()
 
-    def _run(self, duration: float | None) -> None:
+    def run(self, duration: float | None = None) -> None:
+        """Simulate in real time until :attr:`stop_event` is set (or ``duration`` s passed)."""
         dt = 1.0 / self.config.physics_hz
         self._wall_offset = time.time() - time.monotonic()
         self._t0 = time.monotonic() - self.sim.time
@@ -193,14 +195,15 @@ class ModulePeer:
                 self.pauses += 1
 
     def sensors(self) -> Telemetry:
-        """What the physics' sensors give at this step (gyro, rotor inputs after the motor lag)."""
+        """What the physics gives at this step (rotor inputs after the motor lag, one gyro's reading)."""
         if self._sensed is None or self._sensed[0] != self.sim.time:
             self._sensed = (self.sim.time, self.sim.telemetry())
         return self._sensed[1]
 
     def module_gyro(self, i: int) -> np.ndarray:
-        """Module i's gyro: the body rate in the module's frame, rad/s."""
-        return self.module_frame(i, self.sensors().gyro)
+        """Module i's gyro: the body rate in the module's frame, rad/s, with noise of its own (read afresh: each
+        module's IMU is a sensor of its own, and the ground station compares them)."""
+        return self.module_frame(i, self.sim.telemetry().gyro)
 
     def specific_force(self) -> np.ndarray:
         """The body's specific force (acceleration less gravity) in the body frame, in g, from its velocity over

@@ -49,8 +49,9 @@ LEGACY_FIGURES = frozenset(("max_wrench_residual", "max_bound_violation", "max_a
 ``paper_fig1_n12``, ``random10_seed0_n30``/``n60`` and ``toy_v2`` designs). That code accepted a clearance of
 ``2 r - LEGACY_CLEARANCE_TOLERANCE``, and three of those designs are 2.0-2.1e-9 m inside ``2 r``: their stored
 ``feasible`` is checked against that rule, while the verification returned (and every new design) is exact."""
-LEGACY_CLEARANCE_TOLERANCE = 1e-6
-"""Clearance tolerance of the legacy rule, m."""
+LEGACY_CLEARANCE_TOLERANCE = 1e-8
+"""Clearance tolerance of the legacy rule, m: five times what the shipped designs need, not the 1e-6 that code
+allowed (a file chooses the rule by the fields it omits, so the slack must be harmless: 1e-8 m of 0.19)."""
 
 
 @dataclass(frozen=True, eq=False)

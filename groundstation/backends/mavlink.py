@@ -212,7 +212,10 @@ class MavlinkBackend(BackendBase):
         self._drain()
         self._repeat_pending()
         now = self._clock()
-        fresh = all(now - m.heard <= self.settings.link_timeout for m in self._modules)
+        # In flight the body rate must keep coming too: a module whose ATTITUDE stopped while its heartbeats go
+        # on leaves the attitude loop without its gyros (the estimator holds a stale reading, it does not fly on it).
+        fresh = all(now - m.heard <= self.settings.link_timeout and
+                    (not self._armed or now - m.gyro_heard <= self.settings.link_timeout) for m in self._modules)
         # A module that disarmed itself (offboard loss, a failsafe) no longer flies: the flight must stop.
         holding = not self._armed or all(m.armed for m in self._modules)
         rates = body_rates(self._rotations, self._gyro)

@@ -282,7 +282,7 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     links = ", ".join(f"{scheme}{peer.config.host}:{port + i}" for i in range(asm.n))
     click.echo(f"simulating {asm.n} modules ({protocol}) on {links}; pose on {endpoint}", err=True)
     try:
-        peer.run(duration)
+        peer.run_as_world(duration)
     finally:
         peer.close()
     click.echo(json.dumps({"packets": peer.packets, "simulated_s": peer.sim.time, "world_pauses": peer.pauses,

@@ -108,8 +108,11 @@ class EstimatorSettings:
     ``unseen_rate`` (so the next poses correct it). Integrating a 110 deg/s reading held through a 100 ms gap
     left the attitude 11 deg off, every later pose was rejected, and the assembly, flown on the phantom turn,
     flipped (real firmware in the loop)."""
-    unseen_rate: float = 2.0
-    """How fast the body may turn, unseen, while the gyros are stale (std per axis), rad/s."""
+    unseen_rate: float = 0.5
+    """How fast the body may turn, unseen, while the gyros are stale (std per axis), rad/s: a flying assembly's
+    rates, not a tumble's. It opens the attitude gate to the next poses (after 100 ms: 6 sigma = 12 deg) and, with
+    the mocap gone too, feeds the blind landing's position uncertainty (at 2 rad/s that passed its 0.5 m bound
+    0.39 s after a peer died, ahead of the link timeout that names the lost modules)."""
     inconsistent_s: float = 0.05
     """Measurements rejected over this long on end are a fault, s (five samples at 100 Hz)."""
     history_s: float = 0.15
@@ -239,6 +242,8 @@ class RigidBodyFilter:
         # A reading that is not a rate (a module's NaN) is no reading: the attitude is held, the mocap corrects it.
         g = tuple(g) if g is not None and len(g) == 3 and all(map(math.isfinite, g)) else None
         unseen = gyro_age - self.settings.gyro_stale_s if g is not None else 0.0
+        if unseen != unseen:  # an age that is not a number: as old as can be
+            unseen = math.inf
         self._gyro = None if unseen > 0.0 else g  # never heard (an infinite age): none streamed
         if self.initialized and self._t is not None and t > self._t:
             if 0.0 < unseen < math.inf:
@@ -385,6 +390,10 @@ class RigidBodyFilter:
             return None
         return matrix_to_rotvec(poses[0].rotation.T @ poses[-1].rotation) / (poses[-1].t - poses[0].t)
 
+    def _pose_rate(self) -> Vec3 | None:
+        rate = self.pose_rate(self._t) if self._t is not None else None
+        return None if rate is None else tuple(rate.tolist())
+
     def _start(self, m: PoseMeasurement, position: list[float], rotation: list[float]) -> None:
         s = self.settings
         self._p, self._v, self._d = tuple(position), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
@@ -478,7 +487,9 @@ class RigidBodyFilter:
         """The state at the latest :meth:`predict` time (None before the first measurement); the body rate is the
         gyros' less their bias."""
         if self._state is None and self.initialized:
-            omega = self._rate() or (0.0, 0.0, 0.0)
+            # Without a fresh gyro reading the poses' own rate (noisy, late, but not a made-up zero that would
+            # step the attitude loop's damping at every gap), else none.
+            omega = self._rate() or self._pose_rate() or (0.0, 0.0, 0.0)
             # One array for the four, handed out as views of its rows (numpy's cost is per call, not per element).
             rows = np.array(self._p + self._v + omega + self._r).reshape(6, 3)
             self._state = RigidState(rows[0], rows[1], rows[3:], rows[2])

@@ -14,6 +14,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from cflib.crazyflie import Crazyflie
@@ -27,6 +29,9 @@ from groundstation.firmware.params import ParamCheck, matches
 
 ATTEMPTS = 5
 """Connections tried per module."""
+FOREIGN_PACKETS = 10
+"""More packets than this that break cflib's callbacks end a connection attempt: the link is not a Crazyflie's (a
+PX4 module answered with thousands), not a glitch."""
 FIRST_ANSWER_S = 1.0
 """How long a connection attempt waits for the module's first packet, s."""
 
@@ -104,10 +109,12 @@ def _counting_unparsed():
         log.removeFilter(unparsed)
 
 
-def _connect(uri: str, timeout: float, cache: str | None) -> tuple[Crazyflie | None, str]:
+def _connect(uri: str, timeout: float, cache: str | None,
+             foreign: Callable[[], bool] = lambda: False) -> tuple[Crazyflie | None, str]:
     """A fully connected ``Crazyflie`` (TOC and values downloaded), or None and why not. The set-up's first request
     (the protocol version) is one cflib never repeats: without an answer within ``FIRST_ANSWER_S`` the attempt ends
-    early, so a lost packet costs a second, not the whole timeout."""
+    early, so a lost packet costs a second, not the whole timeout. So does ``foreign()`` turning true (the link
+    answers with what is not CRTP: waiting for a table of contents that never comes took 5 s a module)."""
     cf = _RepeatingCrazyflie(rw_cache=cache)
     ready, answered = threading.Event(), threading.Event()
     failure: list[str] = []
@@ -116,7 +123,11 @@ def _connect(uri: str, timeout: float, cache: str | None) -> tuple[Crazyflie | N
     cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg).splitlines()[0]), ready.set(),
                                                          answered.set()))
     cf.open_link(uri)
-    if answered.wait(min(FIRST_ANSWER_S, timeout)) and ready.wait(timeout) and not failure:
+    deadline = time.monotonic() + timeout
+    if answered.wait(min(FIRST_ANSWER_S, timeout)):
+        while not ready.wait(0.05) and not foreign() and time.monotonic() < deadline:
+            pass
+    if ready.is_set() and not failure:
         return cf, ""
     _close(cf)
     return None, failure[0] if failure else f"no answer within {timeout:g} s"
@@ -174,7 +185,7 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
     cf, why = None, ""
     with _counting_unparsed() as unparsed:
         for _ in range(ATTEMPTS):
-            cf, why = _connect(uri, timeout, cache)
+            cf, why = _connect(uri, timeout, cache, lambda: unparsed.count > FOREIGN_PACKETS)
             if cf is not None or unparsed.count:
                 break  # answered, or by something that is not a Crazyflie: no use asking again
     if cf is None:

@@ -453,8 +453,12 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
     _stop_if_asked(requests)
     # The assembly rests: the estimator, on mocap alone (no command, no gyro yet), says where it is, how it is
     # oriented and whether it moves.
-    while ((sub.latest() is None or sub.received < 10 or time.monotonic() - watch_start < m.preflight_watch_s)
+    first_seen = None  # the watch counts from the first sample: a stream that starts late is still watched in full
+    while ((first_seen is None or sub.received < 10 or time.monotonic() - first_seen < m.preflight_watch_s)
            and time.monotonic() < deadline):
+        if first_seen is None and sub.latest() is not None:
+            first_seen = time.monotonic()
+            deadline = max(deadline, first_seen + m.preflight_watch_s + 0.5)
         world.settle(0.02)
         time.sleep(0.005)
         _stop_if_asked(requests)

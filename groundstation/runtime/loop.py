@@ -117,17 +117,21 @@ def realtime_priority(priority: int) -> Iterator[bool]:
         return
     old_policy, old_param = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        # RESET_ON_FORK: threads and processes started from this one (a hook's thread, a restarted firmware
+        # process) do not inherit the real-time policy.
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
     except (PermissionError, OSError):
         yield False
         return
-    reniced = _renice_other_threads(HELPER_NICE)
+    reniced: list[tuple[int, int]] = []
     try:
+        reniced = _renice_other_threads(HELPER_NICE)
         yield True
     finally:
         for tid, nice in reniced:
             with suppress(OSError):  # the thread has ended meanwhile
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
+                if os.path.exists(f"/proc/self/task/{tid}"):  # not an id the kernel has given to another
+                    os.setpriority(os.PRIO_PROCESS, tid, nice)
         os.sched_setscheduler(0, old_policy, old_param)
 
 

@@ -89,17 +89,25 @@ def test_collector_paused_restores_the_collector():
 def test_realtime_priority_is_restored():
     before = os.sched_getscheduler(0)
     wake = threading.Event()
-    helper = threading.Thread(target=wake.wait)  # a link receiver, say
+    helper = threading.Thread(target=wake.wait, daemon=True)  # a link receiver, say
     helper.start()
-    helper_nice = os.getpriority(os.PRIO_PROCESS, helper.native_id)
-    with realtime_priority(10) as rt:
-        assert (os.sched_getscheduler(0) == os.SCHED_FIFO) == rt
-        # the other threads outrank ordinary processes meanwhile (where permitted)
-        assert os.getpriority(os.PRIO_PROCESS, helper.native_id) == (min(HELPER_NICE, helper_nice) if rt else
-                                                                     helper_nice)
-    assert os.sched_getscheduler(0) == before
-    assert os.getpriority(os.PRIO_PROCESS, helper.native_id) == helper_nice
-    wake.set()
-    helper.join()
+    try:
+        helper_nice = os.getpriority(os.PRIO_PROCESS, helper.native_id)
+        with realtime_priority(10) as rt:
+            policy = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK
+            assert (policy == os.SCHED_FIFO) == rt
+            # the other threads outrank ordinary processes meanwhile (where permitted)
+            assert os.getpriority(os.PRIO_PROCESS, helper.native_id) == (min(HELPER_NICE, helper_nice) if rt else
+                                                                         helper_nice)
+            started = []  # a thread started from the real-time one (a hook's) does not inherit the policy
+            child = threading.Thread(target=lambda: started.append(os.sched_getscheduler(0)))
+            child.start()
+            child.join()
+            assert started == [os.SCHED_OTHER]
+        assert os.sched_getscheduler(0) == before
+        assert os.getpriority(os.PRIO_PROCESS, helper.native_id) == helper_nice
+    finally:
+        wake.set()
+        helper.join()
     with realtime_priority(0) as rt:
         assert rt is False and os.sched_getscheduler(0) == before
