@@ -79,7 +79,7 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, flo
         t0 = time.perf_counter()
         for k in range(periods):
             now = k * dt
-            f.predict(now, agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now)))
+            f.predict(now, *agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now)))
             if k % 5 in (0, 2):
                 f.correct(poses[k])
             f.state()

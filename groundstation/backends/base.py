@@ -44,6 +44,10 @@ class Telemetry:
     module_gyros: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     """(n, 3) each module's gyro rotated into the body frame, rad/s (a rigid body: all alike up to noise and their
     delays; empty when not streamed)."""
+    module_gyro_ages_s: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    """(n,) how long before this telemetry each module's reading in ``module_gyros`` arrived, s (inf for a module
+    taken out of the flight; empty when all are ``gyro_age_s`` old): one late packet makes one reading old, not
+    the others."""
     link_latency_s: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     """Per-module round trip of a command, s (median over a recent window; NaN until measured; empty when the
     backend does not measure it)."""

@@ -525,12 +525,16 @@ class CrazyflieBackend(BackendBase):
         thrust = self._map.thrust(self._counts, self._battery)
         quality = self.link_quality()
         rates = body_rates(self._rotations, self._gyro)
+        ages = now - heard  # each state packet carries its module's gyro
+        if self._isolated:
+            ages[sorted(self._isolated)] = np.inf
         faults = tuple(m.fault or ("" if ok else f"sends no state ({_age_text(now - m.heard)}): link lost or the "
                                                  f"module is off")
                        for m, ok in zip(self._modules, fresh, strict=True))
         return Telemetry(stamp=float(heard.max()) if heard.size and np.isfinite(heard).any() else 0.0,
                          link_ok=bool(counted) and bool(np.all(fresh[counted])),
                          gyro_age_s=float(now - heard[counted].min()) if counted else float("inf"),
+                         module_gyro_ages_s=ages,
                          motors=(thrust / self.module.c_f).reshape(-1), battery_v=self._battery.copy(),
                          gyro=rates.mean(axis=0), module_gyros=rates, link_latency_s=quality.latency_s,
                          link_loss=quality.loss, module_faults=faults)

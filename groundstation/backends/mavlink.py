@@ -224,6 +224,7 @@ class MavlinkBackend(BackendBase):
         return Telemetry(stamp=float(heard) if np.isfinite(heard) else 0.0,
                          link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
                          gyro_age_s=float(now - gyro_heard),
+                         module_gyro_ages_s=now - np.array([m.gyro_heard for m in self._modules]),
                          battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates)
 
     def disarm(self) -> None:

@@ -11,7 +11,7 @@ estimator integrates it; one stuck at its reading while the body turns at 60 deg
 latches, and the module is left out of the body rate from then on: with three modules or more the one farthest
 from the others, with two the one farther from the rate the mocap poses show
 (:meth:`RigidBodyFilter.pose_rate`; without poses, neither). Readings that are not numbers never enter the body
-rate.
+rate, nor stale ones while a fresh one is there (a module isolated after a fault sends none: its last reading ages).
 """
 
 from __future__ import annotations
@@ -57,30 +57,38 @@ class GyroAgreement:
         """(t, readings) of the last ``delay_spread``."""
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
-             referee: Callable[[], np.ndarray | None] | None = None) -> np.ndarray:
-        """The body rate to fly on at ``t`` (s): ``mean`` (the backend's, of all modules) unless a module was left
-        out or a reading is not a number; judges ``module_gyros`` ((n, 3), rad/s, body frame) on the way.
-        ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the wrong one of two;
+             referee: Callable[[], np.ndarray | None] | None = None, ages: np.ndarray | None = None,
+             age: float = 0.0, stale_s: float = math.inf) -> tuple[np.ndarray, float]:
+        """The body rate to fly on at ``t`` (s) and how old it is (s): ``mean`` (the backend's, of all modules,
+        ``age`` old) unless a module was left out, a reading is not a number or is stale; judges ``module_gyros``
+        ((n, 3), rad/s, body frame) on the way. ``ages``: each module's reading's age, s (None or empty: all
+        ``age`` old); a reading older than ``stale_s`` is left out of the rate while fresher ones exist, and no
+        reading is judged while one is stale: a packet late by tens of ms during a turn is old news, not a loose
+        IMU. ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the wrong one of two;
         asked only then (not on the control loop's every period)."""
         n = len(module_gyros)
         if n < 2:
-            return mean
+            return mean, age
         # In Python floats: on a few modules' readings numpy's overhead per call costs more than the arithmetic
         # (``python -m benchmarks.estimator``, 2026-12-02: 68 us a period in numpy for two modules, 10 us in floats; 82
         # and 67 us for 60).
         rates = module_gyros.tolist()
         # A sum that is a number says that every reading is one (the common case, on every control period).
         finite = None if math.isfinite(sum(map(sum, rates))) else np.isfinite(module_gyros).all(axis=1)
-        if not self.fault:
+        fresh = None if ages is None or len(ages) != n or not max(ages.tolist()) > stale_s else ages <= stale_s
+        if not self.fault and fresh is None:
             self._judge(t, module_gyros, rates, finite, referee)
-        if self.excluded is None and (finite is None or finite.all()):
-            return mean
+        if self.excluded is None and (finite is None or finite.all()) and fresh is None:
+            return mean, age
         keep = np.isfinite(module_gyros).all(axis=1)
         if self.excluded is not None:
             keep[self.excluded] = False
-        if keep.all():
-            return mean
-        return module_gyros[keep].mean(axis=0) if keep.any() else mean
+        if fresh is not None and (keep & fresh).any():
+            keep &= fresh
+        if not keep.any():
+            return mean, age
+        used_age = age if ages is None or len(ages) != n else float(ages[keep].max())
+        return (mean if keep.all() else module_gyros[keep].mean(axis=0)), used_age
 
     def _judge(self, t: float, module_gyros: np.ndarray, rates: list[list[float]], finite: np.ndarray | None,
                referee: Callable[[], np.ndarray | None] | None) -> None:

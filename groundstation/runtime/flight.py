@@ -348,9 +348,11 @@ class Flight:
         est = self.estimator
         now = self.pose.now()
         gyro = telemetry.gyro if telemetry.gyro.size == 3 else None
+        age = telemetry.gyro_age_s
         if gyro is not None and len(telemetry.module_gyros) > 1:
-            gyro = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now))
-        est.predict(now, gyro, telemetry.gyro_age_s)
+            gyro, age = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now),
+                                        telemetry.module_gyro_ages_s, age, est.settings.gyro_stale_s)
+        est.predict(now, gyro, age)
         for m in self.pose.measurements():
             est.correct(m)
         return est.state(), est.age(now)
