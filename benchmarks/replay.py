@@ -71,7 +71,7 @@ def _synthesize(template: Path, out: Path, minutes: float, rate: float) -> int:
         for k in range(periods):
             t = k / rate
             ns = int((t0 + t) * 1e9)
-            rec = dict(control[k % len(control)], t=t)
+            rec = dict(control[k % len(control)], t_s=t)
             w.add_message(chans["/control"], ns, json.dumps(rec).encode(), ns)
             w.add_message(chans["/state/pose"], ns, per_topic["/state/pose"][k % 100], ns)
             w.add_message(chans["/tf"], ns, per_topic["/tf"][k % 100 + 2], ns)

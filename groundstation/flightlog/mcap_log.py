@@ -5,9 +5,10 @@ received (``/mocap/<body>``, the Zenoh payload bytes unchanged; publish time = t
 estimate (``/state/pose``), transforms world -> body -> module_<i> (``/tf``), the assembly, the reference path
 and the geofence as a scene (``/scene``, :mod:`groundstation.flightlog.scene`), events and errors (``/log``).
 Numeric records go on JSON channels, each with its JSON Schema (:mod:`groundstation.flightlog.schemas`), which
-Foxglove plots directly: ``/control`` (one per period: phase, the state the controller used, setpoint, attitude
-target, roll and yaw targets, desired wrench, per-module motor commands, mocap age, loop timing),
-``/backend/telemetry`` (with link quality), ``/mocap/stats``, ``/loop/timing`` (summary), ``/flight/summary``.
+Foxglove plots directly: ``/control`` (one per period: phase, the state the controller used, setpoint, position
+error, attitude target, roll and yaw targets, desired wrench, rotor commands per module, mocap age, loop timing),
+``/backend/telemetry`` (with link quality), ``/mocap/stats``, ``/loop/timing`` (summary), ``/flight/summary``; each
+record is encoded by :func:`encode_json`, the one place JSON is written.
 Every record's log time is on one clock (the flight's, as seconds since the epoch). The resolved config, the code
 version and the assembly are metadata, written first (a recovered log keeps them).
 
@@ -37,6 +38,7 @@ import array
 import contextlib
 import fcntl
 import json
+import math
 import os
 import pickle
 import select
@@ -87,6 +89,42 @@ def _jsonable(value):
     if isinstance(value, np.ndarray | np.generic):
         return value.tolist()
     raise TypeError(f"cannot log a {type(value).__name__} as JSON")
+
+
+_OMIT = object()
+"""What :func:`_finite` makes of a value that must not be written."""
+
+
+def _finite(value):
+    """``value`` without what is not finite: a member whose value is NaN or infinite, or an array holding one, is
+    left out (an array's element cannot be: the indices after it would move); objects inside arrays are kept, less
+    such members. JSON has no NaN: Python writes a bare ``NaN`` that Foxglove and every strict parser refuse."""
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            v = _finite(v)
+            if v is not _OMIT:
+                out[k] = v
+        return out
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, list | tuple):
+        items = [_finite(v) for v in value]
+        return _OMIT if any(v is _OMIT for v in items) else items
+    if isinstance(value, float | np.floating) and not math.isfinite(value):
+        return _OMIT
+    return value
+
+
+def encode_json(data: dict) -> bytes:
+    """A JSON channel's record as written: rotation matrices as a quaternion and roll/pitch/yaw
+    (:func:`_with_attitudes`), numpy values as numbers, and only finite numbers (:func:`_finite`; the schemas
+    require no member that can be left out). Raises for a value that does not convert."""
+    record = _with_attitudes(data)
+    try:
+        return json.dumps(record, default=_jsonable, allow_nan=False).encode()
+    except ValueError:  # a value not finite (rare: the first /mocap/stats rate, an unmeasured link), walked only then
+        return json.dumps(_finite(record), default=_jsonable, allow_nan=False).encode()
 
 
 def _rpy_deg(r: np.ndarray) -> list[float]:
@@ -524,7 +562,7 @@ class _Writer:
                 messages = [(topic, PoseInFrame.DESCRIPTOR.full_name, msg.SerializeToString()),
                             ("/tf", FrameTransform.DESCRIPTOR.full_name, tf.SerializeToString())]
             else:
-                messages = [(topic, None, json.dumps(_with_attitudes(data), default=_jsonable).encode())]
+                messages = [(topic, None, encode_json(data))]
         except Exception as exc:  # noqa: BLE001 - no I/O above: whatever fails is the record's
             self._reject(topic, "encoding", f"it does not encode ({type(exc).__name__}: {exc})")
             return

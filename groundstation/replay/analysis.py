@@ -24,7 +24,7 @@ from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.errors import ConfigError
-from groundstation.replay.reader import open_log
+from groundstation.replay.reader import commands, open_log
 from groundstation.rotations import quat_to_matrix
 from groundstation.runtime.metrics import FlightFigures, FlightMetrics, figures_of
 
@@ -52,6 +52,11 @@ class Decimated:
                 self.rows = self.rows[::2]
                 self.stride *= 2
         self._k += 1
+
+
+def _per_module(modules: list[dict], key: str) -> np.ndarray:
+    """A telemetry value of every module, (n,), NaN where a module's record leaves it out (not measured)."""
+    return np.array([m.get(key, np.nan) for m in modules], float)
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,20 +122,21 @@ class Rerun:
 
     def add(self, d: dict) -> None:
         st, sp = d["state"], d["setpoint"]
-        state = RigidState(np.array(st["position"]), np.array(st["velocity"]),
-                           quat_to_matrix(np.array(st["orientation"])), np.array(st["omega"]))
-        setpoint = Setpoint(np.array(sp["position"]), np.array(sp["velocity"]), np.array(sp["acceleration"]),
-                            quat_to_matrix(np.array(sp["orientation"])), np.array(sp.get("omega", [0.0] * 3)))
+        state = RigidState(np.array(st["position_m"]), np.array(st["velocity_mps"]),
+                           quat_to_matrix(np.array(st["orientation"])), np.array(st["omega_radps"]))
+        setpoint = Setpoint(np.array(sp["position_m"]), np.array(sp["velocity_mps"]),
+                            np.array(sp["acceleration_mps2"]), quat_to_matrix(np.array(sp["orientation"])),
+                            np.array(sp.get("omega_radps", [0.0] * 3)))
         out = control(state, setpoint, self.model, self.gains)
         u = self.alloc(out.wrench, self.model) / self.model.u_max
-        diff = np.abs(u - np.asarray(d["motors"], float).reshape(-1))
+        diff = np.abs(u - commands(d).reshape(-1))
         s = self.stats
         s.periods += 1
         s.max_motor_diff = max(s.max_motor_diff, float(diff.max()))
         s.sum_sq += float(diff @ diff) / diff.size
         w = d["wrench"]
-        s.max_force_diff_n = max(s.max_force_diff_n, float(np.abs(out.wrench[:3] - w["force"]).max()))
-        s.max_torque_diff_nm = max(s.max_torque_diff_nm, float(np.abs(out.wrench[3:] - w["torque"]).max()))
+        s.max_force_diff_n = max(s.max_force_diff_n, float(np.abs(out.wrench[:3] - w["force_n"]).max()))
+        s.max_torque_diff_nm = max(s.max_torque_diff_nm, float(np.abs(out.wrench[3:] - w["torque_nm"]).max()))
 
 
 @dataclass
@@ -146,13 +152,14 @@ class _Modules:
     loss_max: np.ndarray | None = None
 
     def add(self, d: dict) -> None:
-        b = np.asarray(d.get("battery_v", []), float)
-        if b.size:
+        modules = d.get("modules", [])
+        if any("battery_v" in m for m in modules):
+            b = _per_module(modules, "battery_v")
             self.battery_first = self.battery_first or b.tolist()
             self.battery_last = b.tolist()
-            self.battery_min = b if self.battery_min is None else np.minimum(self.battery_min, b)
-        lat = np.asarray([np.nan if v is None else v for v in d.get("link_latency_s", [])], float)
-        if lat.size:
+            self.battery_min = b if self.battery_min is None else np.fmin(self.battery_min, b)
+        if any("link_latency_s" in m for m in modules):
+            lat = _per_module(modules, "link_latency_s")
             ok = np.isfinite(lat)
             if self.latency_max is None:
                 self.latency_max, self.latency_sum = np.zeros(lat.size), np.zeros(lat.size)
@@ -160,8 +167,7 @@ class _Modules:
             self.latency_max = np.where(ok, np.maximum(self.latency_max, np.where(ok, lat, 0)), self.latency_max)
             self.latency_sum += np.where(ok, lat, 0.0)
             self.latency_n += ok
-            loss = np.asarray([np.nan if v is None else v for v in d.get("link_loss", [])], float)
-            self.loss_max = np.fmax(self.loss_max, loss)
+            self.loss_max = np.fmax(self.loss_max, _per_module(modules, "link_loss_frac"))
 
     def result(self) -> dict:
         """The :class:`ReplayFigures` battery and link fields (empty tuples without telemetry)."""
@@ -292,22 +298,22 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     for rec in log.records(progress=progress):
         d = rec.data
         if rec.topic == "/control":
-            t = d["t"]
+            t = d["t_s"]
             offset = rec.log_time - t if offset is None else offset
             if not timeline or timeline[-1][1] != d["phase"]:
                 timeline.append((t, d["phase"]))
             if "state" not in d or not lo <= t <= hi:
                 continue  # a motors-off record (the flight's last), or outside the window
             if metrics is None:
-                metrics = FlightMetrics(len(d["motors"]))
+                metrics = FlightMetrics(len(d["modules"]))
                 if rerun:
                     rr = Rerun(json.loads(log.metadata.get("assembly", "null")), _config(log.metadata, src),
                                gains, allocation, src)
             flown = d.get("truth", d["state"])
             rotation = quat_to_matrix(np.array(flown["orientation"]))
             target = quat_to_matrix(np.array(d["attitude_target"]["orientation"]))
-            motors = np.asarray(d["motors"], float)
-            metrics.add(t, d["phase"], flown["position"], d["setpoint"]["position"], rotation, target,
+            motors = commands(d)
+            metrics.add(t, d["phase"], flown["position_m"], d["setpoint"]["position_m"], rotation, target,
                         math.radians(d["roll_target_deg"]), math.radians(d["yaw_target_deg"]), motors,
                         d.get("mocap_age_s"))
             loop = d.get("loop") or {}
@@ -315,7 +321,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
                 metrics.add_timing(loop["start_error_s"], loop["compute_s"])
                 overruns = max(overruns, loop["overruns"])
                 max_start_error = max(max_start_error, abs(loop["start_error_s"]))
-            series.add((t, flown["position"], d["setpoint"]["position"], flown["rpy_deg"],
+            series.add((t, flown["position_m"], d["setpoint"]["position_m"], flown["rpy_deg"],
                         d["attitude_target"]["rpy_deg"], motors, PHASES.index(d["phase"])))
             if rr is not None:
                 rr.add(d)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from groundstation.output import writing
-from groundstation.replay.reader import open_log
+from groundstation.replay.reader import commands, open_log
 
 
 def export_csv(path: str | Path, out_dir: str | Path, t_from: float | None = None,
@@ -33,18 +33,18 @@ def export_csv(path: str | Path, out_dir: str | Path, t_from: float | None = Non
                 events.append((rec.log_time, *rec.data))
                 continue
             d = rec.data
-            offset = rec.log_time - d["t"] if offset is None else offset
-            if "state" not in d or not lo <= d["t"] <= hi:
+            offset = rec.log_time - d["t_s"] if offset is None else offset
+            if "state" not in d or not lo <= d["t_s"] <= hi:
                 continue
-            motors = np.asarray(d["motors"], float)
+            motors = commands(d)
             if not header_done:
                 w.writerow(["t_s", "phase", "x_m", "y_m", "z_m", "x_ref_m", "y_ref_m", "z_ref_m", "roll_deg",
                             "pitch_deg", "yaw_deg", "roll_target_deg", "pitch_target_deg", "yaw_target_deg",
                             "mocap_age_s", "start_error_s"]
-                           + [f"m{i}_q{q + 1}" for i in range(motors.shape[0]) for q in range(4)])
+                           + [f"m{i}_q{q + 1}_frac_umax" for i in range(motors.shape[0]) for q in range(4)])
                 header_done = True
             flown = d.get("truth", d["state"])
-            w.writerow([d["t"], d["phase"], *flown["position"], *d["setpoint"]["position"], *flown["rpy_deg"],
+            w.writerow([d["t_s"], d["phase"], *flown["position_m"], *d["setpoint"]["position_m"], *flown["rpy_deg"],
                         *d["attitude_target"]["rpy_deg"], d.get("mocap_age_s", ""),
                         (d.get("loop") or {}).get("start_error_s", ""), *motors.reshape(-1)])
     with writing(events_path), open(events_path, "w", newline="") as fe:

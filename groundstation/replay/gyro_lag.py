@@ -68,7 +68,7 @@ def gyro_lag(path: str | Path) -> GyroLag:
         if rec.topic == "/control":
             d = rec.data
             if "state" in d and Phase(d["phase"]).airborne:
-                periods.append((rec.log_time, d["state"]["omega"]))
+                periods.append((rec.log_time, d["state"]["omega_radps"]))
             continue
         if not rec.topic.startswith("/mocap/") or rec.topic == "/mocap/stats":
             continue

@@ -3,17 +3,19 @@
 The reader goes through the file front to back (:class:`~groundstation.flightlog.salvage.LogScan`: it needs no
 summary section, so a log recovered after a crash, or cut short by a crash, reads too, up to its last complete
 chunk; a damaged chunk or record is skipped and reading goes on with the next intact chunk) and decodes JSON
-channels to dicts and ``/log`` to (level, text). Memory does not grow with the file: nothing is kept but the
-channel table.
+channels to dicts (a record of an older log in today's shape, :func:`upgraded`) and ``/log`` to (level, text).
+Memory does not grow with the file: nothing is kept but the channel table.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from mcap.records import Channel, Header, Message, Metadata
 from mcap.stream_reader import StreamReader
@@ -67,9 +69,48 @@ class LogFile:
         self.complete, self.warnings = scan.complete, tuple(scan.warnings())
 
 
+_UNITS = {"position": "position_m", "velocity": "velocity_mps", "acceleration": "acceleration_mps2",
+          "omega": "omega_radps", "force": "force_n", "torque": "torque_nm"}
+"""Fields of ``/control``'s objects before the names said their units, and their names since."""
+
+
+def upgraded(topic: str, d: dict) -> dict:
+    """A ``/control`` or ``/backend/telemetry`` record of a log written before fields named their units and values
+    per module and rotor became per-module objects (``"t"``, ``"motors": [[...], ...]``) in today's shape
+    (:mod:`groundstation.flightlog.schemas`), so that replay reads old logs too; any other record as it is. A
+    module's unmeasured value (NaN, or null) becomes an absent member, as the writer leaves it out now."""
+    if "t" not in d or topic not in ("/control", "/backend/telemetry"):
+        return d
+    out = {"t_s": d["t"]} | {k: v for k, v in d.items() if k not in ("t", "motors", "applied", "battery_v",
+                                                                    "link_latency_s", "link_loss", "gyro")}
+    if topic == "/control":
+        for part in ("state", "truth", "setpoint", "wrench"):
+            if part in d:
+                out[part] = {_UNITS.get(k, k): v for k, v in d[part].items()}
+        out["modules"] = [{"command_frac_umax": m} for m in d["motors"]]
+        for module, applied in zip(out["modules"], d.get("applied", ()), strict=False):
+            module["applied_frac_umax"] = applied
+        return out
+    motors = d.get("motors", [])
+    out["modules"] = [{"rotor_speed_sq_rad2_s2": motors[i:i + 4]} for i in range(0, len(motors), 4)]
+    for old, new in (("battery_v", "battery_v"), ("link_latency_s", "link_latency_s"),
+                     ("link_loss", "link_loss_frac")):
+        for module, v in zip(out["modules"], d.get(old, ()), strict=False):
+            if v is not None and math.isfinite(v):
+                module[new] = v
+    if d.get("gyro"):
+        out["gyro_radps"] = d["gyro"]
+    return out
+
+
+def commands(d: dict) -> np.ndarray:
+    """The rotor commands of a ``/control`` record, (n, 4), fractions of u_max."""
+    return np.array([m["command_frac_umax"] for m in d["modules"]], float)
+
+
 def _decode(ch: Channel, data: bytes) -> object:
     if ch.message_encoding == "json":
-        return json.loads(data)
+        return upgraded(ch.topic, json.loads(data))
     if ch.topic == "/log":
         msg = Log()
         msg.ParseFromString(data)

@@ -554,12 +554,12 @@ class Flight:
 
     def _log_motors_off(self, t: float) -> None:
         if self.log is not None:
-            # "motors" is what was commanded (zero, with the stop); "applied" what the backend reports now, which
-            # for real modules can lag by one reply (their state packets are already on the way).
+            # The command is zero (the stop); "applied" is what the backend reports now, which for real modules can
+            # lag by one reply (their state packets are already on the way).
             applied = self.backend.telemetry().motors.reshape(-1, 4) / self.model.u_max
-            self.log.record("/control", {"t": t, "phase": self.phase, "motors": np.zeros_like(applied),
-                                         "applied": applied,
-                                         "motors_off": True}, self._log_time(t))
+            modules = [{"command_frac_umax": np.zeros(4), "applied_frac_umax": a} for a in applied]
+            self.log.record("/control", {"t_s": t, "phase": self.phase, "modules": modules, "motors_off": True},
+                            self._log_time(t))
 
     def _finish(self, t: float) -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
@@ -573,6 +573,7 @@ class Flight:
         flown = truth or state
         roll_target, _, yaw_target = roll_pitch_yaw(sp.rotation)
         fractions = u.reshape(-1, 4) / self.model.u_max
+        worst = float(fractions.max())
         self.periods += 1
         self.metrics.add(t, self.phase, flown.position, sp.position, flown.rotation, out.rotation_desired,
                          roll_target, yaw_target, fractions, age)
@@ -599,15 +600,19 @@ class Flight:
             # One record per period (fewer, larger messages keep the feeder's share of the GIL small); the arrays
             # are fresh each period, so no copies are needed, and the writer process converts them (rotation
             # matrices become a quaternion and roll/pitch/yaw there, off the control thread).
-            record = {"t": t, "phase": self.phase,
-                      "state": {"position": state.position, "velocity": state.velocity, "rotation": state.rotation,
-                                "omega": state.omega},
-                      "setpoint": {"position": sp.position, "velocity": sp.velocity,
-                                   "acceleration": sp.acceleration, "rotation": sp.rotation, "omega": sp.omega},
+            record = {"t_s": t, "phase": self.phase,
+                      "state": {"position_m": state.position, "velocity_mps": state.velocity,
+                                "rotation": state.rotation, "omega_radps": state.omega},
+                      "setpoint": {"position_m": sp.position, "velocity_mps": sp.velocity,
+                                   "acceleration_mps2": sp.acceleration, "rotation": sp.rotation,
+                                   "omega_radps": sp.omega},
+                      "position_error_m": flown.position - sp.position,
                       "attitude_target": {"rotation": out.rotation_desired},
                       "roll_target_deg": np.degrees(roll_target), "yaw_target_deg": np.degrees(yaw_target),
-                      "wrench": {"force": out.wrench[:3], "torque": out.wrench[3:]},
-                      "motors": fractions, "mocap_age_s": age, "loop": timing}
+                      "wrench": {"force_n": out.wrench[:3], "torque_nm": out.wrench[3:]},
+                      "modules": [{"command_frac_umax": f} for f in fractions],
+                      "command_max_frac_umax": worst, "command_min_frac_umax": fractions.min(),
+                      "mocap_age_s": age, "loop": timing}
             est = self.estimator
             e = est.estimate()
             if e is not None:
@@ -618,21 +623,17 @@ class Flight:
                                       "innovation_attitude_deg": np.degrees(est.innovation_attitude),
                                       "fused": est.fused, "rejected": est.rejected, "late": est.late}
             if truth is not None:
-                record["truth"] = {"position": truth.position, "rotation": truth.rotation}
+                record["truth"] = {"position_m": truth.position, "rotation": truth.rotation}
             self.log.record("/control", record, tw)
             if self.periods % 25 == 1:  # telemetry at a tenth of the loop rate (250 Hz -> 10 Hz)
-                self.log.record("/backend/telemetry", {"t": t, "link_ok": telemetry.link_ok,
-                                                       "motors": telemetry.motors, "battery_v": telemetry.battery_v,
-                                                       "gyro": telemetry.gyro,
-                                                       "link_latency_s": telemetry.link_latency_s,
-                                                       "link_loss": telemetry.link_loss}, tw)
+                self.log.record("/backend/telemetry", _telemetry_record(t, telemetry), tw)
         if self.on_status is not None:
             battery = float(telemetry.battery_v.min()) if telemetry.battery_v.size else None
             st = self._stats
             t_w, n_w = self._rate_window
             if t - t_w >= RATE_WINDOW_S:  # periods actually run, not the configured rate
                 self._rate_hz, self._rate_window = (self.periods - n_w) / (t - t_w), (t, self.periods)
-            self.on_status(Status(t, self.phase, age, float(u.max() / self.model.u_max), battery,
+            self.on_status(Status(t, self.phase, age, worst, battery,
                                   st.overruns if st is not None else 0, self._rate_hz, self.integrity()))
 
     # -- run --------------------------------------------------------------------------------------------------------
@@ -711,3 +712,20 @@ def _level(rotation: np.ndarray) -> np.ndarray:
     yaw = roll_pitch_yaw(rotation)[2]
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _telemetry_record(t: float, telemetry: Telemetry) -> dict:
+    """The ``/backend/telemetry`` record (:data:`groundstation.flightlog.schemas.TELEMETRY`): per-module values in
+    one object per module, so that a module's unmeasured round trip (NaN) is the one member the writer leaves out,
+    where an array of every module's would go whole; what the backend does not report (an empty array) is not
+    written."""
+    modules = [{"rotor_speed_sq_rad2_s2": m} for m in telemetry.motors.reshape(-1, 4)]
+    for key, values in (("battery_v", telemetry.battery_v), ("link_latency_s", telemetry.link_latency_s),
+                        ("link_loss_frac", telemetry.link_loss)):
+        # One value per module; an empty array (not reported) adds none, and a short one must not raise in the loop.
+        for module, v in zip(modules, values, strict=False):
+            module[key] = v
+    record = {"t_s": t, "link_ok": telemetry.link_ok, "modules": modules}
+    if telemetry.gyro.size:
+        record["gyro_radps"] = telemetry.gyro
+    return record

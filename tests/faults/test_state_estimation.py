@@ -32,7 +32,7 @@ def _tilt_deg(q) -> float:
 def _truth(log) -> list[tuple[float, str, float, float]]:
     """(flight time s, phase, true height m, true tilt deg) of every control period of a dry run's log."""
     _, _, _, motors = read_log(log)
-    return [(m["t"], m["phase"], m["truth"]["position"][2], _tilt_deg(m["truth"]["orientation"]))
+    return [(m["t_s"], m["phase"], m["truth"]["position_m"][2], _tilt_deg(m["truth"]["orientation"]))
             for _, m in motors if "truth" in m]
 
 
@@ -105,7 +105,7 @@ def f_mocap_blackout_1s(cli, tmp_path):
     ground = truth[0][2]
     assert abs(truth[-1][2] - ground) < 0.03  # landed, not dropped from the air
     _, _, _, motors = read_log(log)
-    after = [m["estimate"]["position_sigma_m"] for _, m in motors if "estimate" in m and m["t"] > 5.8]
+    after = [m["estimate"]["position_sigma_m"] for _, m in motors if "estimate" in m and m["t_s"] > 5.8]
     assert after and max(after) < 0.01  # the poses are back: the uncertainty is mocap's again
 
 
@@ -141,13 +141,13 @@ def f_gyro_failed(cli, tmp_path):
     truth = _truth(log)
     assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
     _, _, _, motors = read_log(log)
-    after = [m for _, m in motors if "state" in m and 0.0 <= m["t"] - failed[0] < 0.3]
+    after = [m for _, m in motors if "state" in m and 0.0 <= m["t_s"] - failed[0] < 0.3]
     # the failed reading never reached the estimate: one period of half of it (1000 deg/s) would have turned the
     # estimated attitude 4 deg away from the physics'; it stays within 1 deg, the body rate within 200 deg/s
     off = [np.degrees(2 * np.arccos(min(1.0, abs(float(np.dot(m["state"]["orientation"],
                                                                  m["truth"]["orientation"])))))) for m in after]
     assert after and max(off) < 1.0, max(off)
-    assert max(np.degrees(np.linalg.norm(m["state"]["omega"])) for m in after) < 200.0
+    assert max(np.degrees(np.linalg.norm(m["state"]["omega_radps"])) for m in after) < 200.0
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

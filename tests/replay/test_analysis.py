@@ -98,7 +98,7 @@ def test_every_record_is_on_one_clock(sim_flight):
     _, log = sim_flight
     with open(log, "rb") as fh:
         reader = make_reader(fh)
-        control = [(m.log_time * 1e-9, json.loads(m.data)["t"]) for _, _, m in reader.iter_messages(["/control"])]
+        control = [(m.log_time * 1e-9, json.loads(m.data)["t_s"]) for _, _, m in reader.iter_messages(["/control"])]
     offsets = np.array([lt - t for lt, t in control])
     assert offsets.max() - offsets.min() < 1e-6  # log time = loop start + flight time, every period
     with open(log, "rb") as fh:
@@ -134,8 +134,9 @@ def test_window(sim_flight, tmp_path):
     assert r.metrics.periods == inside and 0 < inside <= 501
 
 
-def _copy_without(src, dst, drop: set[str]) -> None:
-    """The log minus some channels, and without the summary (as if written by an older writer)."""
+def copy_log(src, dst, drop: set[str] = frozenset(), record=None) -> None:
+    """The log minus the channels ``drop`` and without the summary (as if written by an older writer), each JSON
+    record through ``record(topic, record)`` when given."""
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
 
@@ -147,18 +148,21 @@ def _copy_without(src, dst, drop: set[str]) -> None:
             if isinstance(rec, Schema):
                 schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
             elif isinstance(rec, Channel) and rec.topic not in drop:
-                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding, schemas[rec.schema_id])
+                channels[rec.id] = (w.register_channel(rec.topic, rec.message_encoding, schemas[rec.schema_id]),
+                                    rec.topic, rec.message_encoding == "json")
             elif isinstance(rec, Metadata):
                 w.add_metadata(rec.name, dict(rec.metadata))
             elif isinstance(rec, Message) and rec.channel_id in channels:
-                w.add_message(channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time)
+                cid, topic, is_json = channels[rec.channel_id]
+                data = json.dumps(record(topic, json.loads(rec.data))).encode() if is_json and record else rec.data
+                w.add_message(cid, rec.log_time, data, rec.publish_time)
         w.finish()
 
 
 def test_log_without_telemetry_channels(sim_flight, tmp_path):
     res, log = sim_flight
     bare = tmp_path / "bare.mcap"
-    _copy_without(log, bare, {"/backend/telemetry", "/mocap/stats", "/loop/timing", "/flight/summary"})
+    copy_log(log, bare, {"/backend/telemetry", "/mocap/stats", "/loop/timing", "/flight/summary"})
     r = analyse(bare)
     for key in FIGURES:
         assert same(getattr(r.metrics, key), getattr(res.metrics, key)), key

@@ -35,8 +35,8 @@ def _log(path, delay: float, amplitude_deg: float = 60.0, latency: float = 0.005
         events = []
         for k in range(1000):
             t = k / 250
-            events.append((t, "c", {"t": t, "phase": "track", "motors": [[0.4] * 4],
-                                    "state": {"omega": [0.0, a * math.sin(w * (t - delay)), 0.0]}}))
+            events.append((t, "c", {"t_s": t, "phase": "track", "modules": [{"command_frac_umax": [0.4] * 4}],
+                                    "state": {"omega_radps": [0.0, a * math.sin(w * (t - delay)), 0.0]}}))
         for k in range(400):
             tc = k / 100
             p = PoseInFrame()

@@ -9,6 +9,7 @@ from mcap.reader import make_reader
 
 from groundstation.errors import BackendError, ConfigError, PreflightError, SessionError
 from groundstation.mocap.auth import write_key_file
+from groundstation.replay.reader import commands
 from groundstation.runtime.flight import Requests
 from groundstation.runtime.flight_config import load_flight_config
 from groundstation.runtime.fly import Faults, fly
@@ -106,15 +107,15 @@ def test_failsafes_stop_or_land_and_are_logged(tmp_path, fault, expect_phase, re
     assert any(reason in t for t in texts)
     # the log ends with the motors commanded off, and nothing is commanded after that; the simulator applies an
     # emergency stop at once, so its reported motors are zero in that same record
-    assert motors[-1][1]["motors_off"] and np.max(motors[-1][1]["motors"]) == 0.0
+    assert motors[-1][1]["motors_off"] and np.max(commands(motors[-1][1])) == 0.0
     if expect_phase == "emergency":
-        assert np.max(motors[-1][1]["applied"]) == 0.0
+        assert np.max([m["applied_frac_umax"] for m in motors[-1][1]["modules"]]) == 0.0
     else:  # landed blind on the estimate: on the ground when the motors went off (the physics says so)
-        ground = motors[0][1]["truth"]["position"][2]
-        assert abs(motors[-2][1]["truth"]["position"][2] - ground) < 0.03
+        ground = motors[0][1]["truth"]["position_m"][2]
+        assert abs(motors[-2][1]["truth"]["position_m"][2] - ground) < 0.03
     if expect_phase == "emergency":  # stopped in flight: the period before still had thrust
-        assert np.max(motors[-2][1]["motors"]) > 0.0
-    assert {"setpoint", "wrench", "motors", "loop"} <= set(motors[len(motors) // 2][1])
+        assert np.max(commands(motors[-2][1])) > 0.0
+    assert {"setpoint", "wrench", "modules", "loop"} <= set(motors[len(motors) // 2][1])
     if expect_phase == "emergency":
         t_event = [t for t, d in logs if reason.encode() in d][0]
         after = [m for t, m in motors if t > t_event]
@@ -217,8 +218,8 @@ def test_hardware_backend_flies_twice_through_simulated_modules(sim_peer, tmp_pa
     assert json.loads(meta["config"]["value"])["backend"]["kind"] == kind
     assert counts["/mocap/assembly"] > 100 * (1.5 + 0.5 + 3.0 + 1.5) and counts["/backend/telemetry"] > 0
     airborne = [m for _, m in motors if m["phase"] == "track"]
-    assert airborne and min(np.mean(m["motors"]) for m in airborne) > 0.2  # hover needs ~0.38 of u_max
-    assert motors[-1][1].get("motors_off") and np.max(motors[-1][1]["motors"]) == 0.0
+    assert airborne and min(np.mean(commands(m)) for m in airborne) > 0.2  # hover needs ~0.38 of u_max
+    assert motors[-1][1].get("motors_off") and np.max(commands(motors[-1][1])) == 0.0
 
 
 def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
@@ -233,8 +234,8 @@ def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
     counts, meta, logs, motors = read_log(log)
     off = [m for _, m in motors if m.get("motors_off")]
     last_flying = [m for _, m in motors if not m.get("motors_off")][-1]
-    assert len(off) == 1 and np.max(off[0]["motors"]) == 0.0 and motors[-1][1] is off[0]
-    assert off[0]["t"] > last_flying["t"] > 4.0  # motors off in the period the loss is seen, after the kill
+    assert len(off) == 1 and np.max(commands(off[0])) == 0.0 and motors[-1][1] is off[0]
+    assert off[0]["t_s"] > last_flying["t_s"] > 4.0  # motors off in the period the loss is seen, after the kill
     assert any(b"sends no state" in data or b"backend link lost" in data for _, data in logs)
 
 
