@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import socket
 import struct
 import subprocess
@@ -35,6 +36,18 @@ FIRMWARE_PHYSICS_HZ = 1000.0
 """The firmware's IMU rate: one sensor datagram per physics step releases one stabilizer step."""
 REBOOT_STATUS = 3
 READY_TIMEOUT_S = 10.0
+FIRMWARE_PRIORITY = 15
+"""SCHED_FIFO priority of the firmware processes (and every task thread of theirs), where the host permits it:
+below the world that feeds them (20), above the ground station's loop (10). On hardware each module's firmware
+has a processor of its own; behind ordinary processes on a busy host it answered tens of ms late, which the
+ground station rightly takes for a degraded link. Their idle task sleeps (``vApplicationIdleHook``), so they take
+what they use and no more."""
+
+
+def _firmware_priority() -> None:
+    """``preexec_fn`` of a firmware process: :data:`FIRMWARE_PRIORITY` where permitted (as it was otherwise)."""
+    with contextlib.suppress(PermissionError, OSError):
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIRMWARE_PRIORITY))
 
 
 class _Process:
@@ -59,7 +72,7 @@ class _Process:
         self.heard = False
         self.ratios = np.zeros(4)
         with open(self.log, "a") as out:
-            self.proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT)
+            self.proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_firmware_priority)
         self.running = True
 
     def alive(self) -> bool:
