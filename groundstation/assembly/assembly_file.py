@@ -45,13 +45,11 @@ DESIGN_KEYS = ("wrenches", "weights", "u", "feasible", "cost", "verification")
 """Keys of a designed assembly (``Design.record``): all of them or none."""
 LEGACY_FIGURES = frozenset(("max_wrench_residual", "max_bound_violation", "max_angle_violation",
                             "min_capsule_distance", "required_distance", "feasible"))
-"""The verification figures of records written before the verification kept its tolerances (the shipped
-``paper_fig1_n12``, ``random10_seed0_n30``/``n60`` and ``toy_v2`` designs). That code accepted a clearance of
-``2 r - LEGACY_CLEARANCE_TOLERANCE``, and three of those designs are 2.0-2.1e-9 m inside ``2 r``: their stored
-``feasible`` is checked against that rule, while the verification returned (and every new design) is exact."""
-LEGACY_CLEARANCE_TOLERANCE = 1e-8
-"""Clearance tolerance of the legacy rule, m: five times what the shipped designs need, not the 1e-6 that code
-allowed (a file chooses the rule by the fields it omits, so the slack must be harmless: 1e-8 m of 0.19)."""
+"""The verification figures of records written before the verification kept its tolerances (``toy_v2``). They are
+checked by today's exact rules like every other record: the code that wrote them accepted a clearance of
+``2 r - 1e-6 m``, and designs it shipped 2.0-2.1e-9 m inside ``2 r`` were solved again and re-shipped
+(``paper_fig1_n12``, ``random10_seed0_n30``/``n60``; a user's file of that kind is refused naming ``feasible``:
+solve it again)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,7 +218,7 @@ def _is_number(x) -> bool:
 
 def _check_design(record: dict, assembly: Assembly, src: str) -> CheckedDesign:
     """Re-run the verification on the stored angles and inputs; the stored flag, cost and figures must agree
-    (the flag and cost of a legacy record under its own rule, see :data:`LEGACY_FIGURES`)."""
+    (a legacy record's fewer figures included, see :data:`LEGACY_FIGURES`)."""
     wrenches = _numbers(record["wrenches"], src, "wrenches", (None, 6))
     k = len(wrenches)
     weights = _numbers(record["weights"], src, "weights", (k,))
@@ -230,7 +228,7 @@ def _check_design(record: dict, assembly: Assembly, src: str) -> CheckedDesign:
     names = {f.name for f in fields(Verification)}
     if not isinstance(figures, dict) or set(figures) not in (names, LEGACY_FIGURES):
         raise ConfigError(f"expected the fields {', '.join(sorted(names))}", path=src, key="verification")
-    failures = ver.failures(LEGACY_CLEARANCE_TOLERANCE if set(figures) == LEGACY_FIGURES else 0.0)
+    failures = ver.failures()
     if not isinstance(record["feasible"], bool) or record["feasible"] == bool(failures):
         why = "; ".join(failures) or "every check passes"
         raise ConfigError(f"says {record['feasible']!r}, but the design recomputed from the angles and inputs is "

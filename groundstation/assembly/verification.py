@@ -51,9 +51,9 @@ class Verification:
     feasible: bool
     """All checks pass."""
 
-    def failures(self, clearance_tolerance: float = 0.0) -> list[str]:
+    def failures(self) -> list[str]:
         """The checks these figures fail, one phrase each with the numbers; empty when they pass. A non-finite
-        figure fails. ``clearance_tolerance`` (m) is for records verified under an older rule only."""
+        figure fails."""
         out = []
         if not self.max_wrench_residual <= self.residual_tolerance:
             out.append(f"wrench residual {self.max_wrench_residual:.3g} above {self.residual_tolerance:.3g}")
@@ -61,7 +61,7 @@ class Verification:
             out.append(f"inputs {self.max_bound_violation:.3g} rad^2/s^2 outside [0, u_max]")
         if not self.max_angle_violation <= ANGLE_TOLERANCE:
             out.append(f"an angle {self.max_angle_violation:.3g} rad past +-90 deg")
-        if not self.min_capsule_distance >= self.required_distance - clearance_tolerance:
+        if not self.min_capsule_distance >= self.required_distance:
             out.append(f"capsule axes {self.min_capsule_distance:.10g} m apart, under 2 r = "
                        f"{self.required_distance:g} m")
         return out

@@ -345,7 +345,7 @@ def loop_rate_needed(natural_hz: float, zeta: float) -> float:
 def axis_coupling(inertia) -> list[float]:
     """The eigenvalues ``mu`` of ``J^-1 diag(J)`` for an inertia ``J`` (kg m^2, body frame): the attitude gains
     scale with ``diag(J)``, so a mode of the linearised attitude loop has natural frequency ``w sqrt(mu)`` and
-    damping ``zeta sqrt(mu)`` (all 1 for principal axes; 0.79-1.35 for the shipped assemblies)."""
+    damping ``zeta sqrt(mu)`` (all 1 for principal axes; 0.84-1.23 for the shipped assemblies)."""
     import numpy as np
 
     j = np.asarray(inertia, dtype=float)

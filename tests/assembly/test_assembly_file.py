@@ -17,6 +17,7 @@ from groundstation.assembly.topology import Topology
 from groundstation.assembly.verification import input_cost
 from groundstation.errors import ConfigError
 
+HERE = Path(__file__).resolve().parent
 ROOT = Path(__file__).resolve().parents[2]
 P = ModuleParams()
 
@@ -33,10 +34,7 @@ def test_every_shipped_assembly_loads_and_reverifies(path):
     assert input_cost(design.u, design.weights) == pytest.approx(rec["cost"], rel=1e-12)
     ver = design.verification
     assert ver.max_wrench_residual <= ver.residual_tolerance and ver.max_bound_violation == 0
-    if set(rec["verification"]) != LEGACY_FIGURES:
-        assert ver.feasible and design.cost == pytest.approx(rec["cost"], rel=1e-12)
-    else:  # written under the old rule (clearance 2 r - 1e-6 m): three designs are 2.0-2.1e-9 m inside 2 r
-        assert ver.feasible or 0 < 2 * P.r - ver.min_capsule_distance < 2.2e-9
+    assert ver.feasible and ver.min_capsule_distance >= 2 * P.r  # exactly: no shipped design relies on a slack
 
 
 def _axis_distance(p0, p1, q0, q1, samples=400):
@@ -143,16 +141,14 @@ def test_a_tampered_design_file_is_refused_naming_the_key(tmp_path, edit, key, f
     assert err.value.key == key and str(err.value).startswith(f"{path}: {key}: ") and fragment in str(err.value)
 
 
-def test_the_legacy_clearance_rule_holds_only_for_legacy_records(tmp_path):
-    """paper_fig1_n12 was verified when 2 r - 1e-6 m passed and is 2.0e-9 m inside 2 r: it loads as written, but
-    not once its verification figures claim the exact rule of today's verification."""
-    rec = json.loads((ROOT / "configs/assemblies/paper_fig1_n12.json").read_text())
-    _, design = checked_record(rec, "fig1")
-    assert 2 * P.r - design.verification.min_capsule_distance == pytest.approx(2.03e-9, rel=0.01)
-    rec["verification"].update(residual_tolerance=design.verification.residual_tolerance,
-                               bound_tolerance=design.verification.bound_tolerance)
-    path = tmp_path / "fig1.json"
-    path.write_text(json.dumps(rec))
+def test_a_design_written_under_the_old_clearance_rule_is_refused():
+    """The Fig. 1 design as shipped before (``data/legacy_paper_fig1_n12.json``, kept as it was written) was
+    verified when 2 r - 1e-6 m passed and is 2.0e-9 m inside 2 r: refused, naming ``feasible`` and the distance;
+    the design shipped now (the README's command) loads."""
+    rec = json.loads((HERE / "data/legacy_paper_fig1_n12.json").read_text())
+    assert set(rec["verification"]) == LEGACY_FIGURES and rec["feasible"] is True
     with pytest.raises(ConfigError) as err:
-        load_assembly(path)
+        load_assembly(HERE / "data/legacy_paper_fig1_n12.json")
     assert err.value.key == "feasible" and "capsule axes 0.189999998 m apart, under 2 r = 0.19 m" in str(err.value)
+    fig1, _ = load_assembly(ROOT / "configs/assemblies/paper_fig1_n12.json")
+    assert fig1.n == 12

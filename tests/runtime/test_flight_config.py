@@ -140,7 +140,7 @@ def test_axis_coupling_of_the_inertia():
     assert axis_coupling(np.diag([1.0, 2.0, 3.0])) == pytest.approx([1.0, 1.0, 1.0])
     fig1, _ = load_assembly(ROOT / "configs/assemblies/paper_fig1_n12.json")
     mus = axis_coupling(fig1.inertia)
-    assert mus[0] < 0.9 and mus[-1] > 1.3  # off-diagonal inertia: one attitude mode 1.16 x faster
+    assert mus[0] < 0.9 and mus[-1] > 1.2  # off-diagonal inertia: one attitude mode 1.11 x faster (sqrt 1.225)
 
 
 def _issue(cfg: FlightConfig, inertia, **changes) -> list:
