@@ -11,6 +11,13 @@ from rich.table import Table
 from groundstation.cli.common import FINITE, SEED, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
+DRAW_LIMIT = 1000
+"""Most configurations one drawing holds (a sheet of 1000 is already ~32 x 32 cells)."""
+LARGEST_DRAWABLE = {"C4": 7, "D4": 8, "none": 6}
+"""Per symmetry group, the largest n whose whole level fits in :data:`DRAW_LIMIT` (C4: 401 at n = 7, 1772 at 8;
+D4: 908 and 4011; none: 364 and 1574; tests/cli/test_enumerate_cmd.py counts them): a larger ``--draw`` is
+refused before enumerating, not after minutes of it."""
+
 
 @click.command("enumerate")
 @click.argument("n", type=int)
@@ -44,6 +51,9 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
     draw_path = writable_output(draw, (".png", ".svg", ".pdf")) if draw else None
     if n < 1:
         raise UsageError(f"number of modules must be at least 1, got {n}")
+    if draw_path is not None and n > LARGEST_DRAWABLE[symmetry] and (sample is None or sample > DRAW_LIMIT):
+        raise UsageError(f"--draw: level n={n} ({symmetry}) has more than {DRAW_LIMIT} configurations, too many to "
+                         f"draw; draw n <= {LARGEST_DRAWABLE[symmetry]}, or sample it (--sample {DRAW_LIMIT} or less)")
 
     console = stderr_console()
     with console.status("loading the enumeration kernels (the first run on a machine compiles them, ~10 s)"):
@@ -80,8 +90,6 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
         from groundstation.design.drawing import draw_level
 
         last = levels[-1]
-        if last.kept > 1000:
-            raise UsageError(f"level n={last.n} has {last.kept} configurations, too many to draw (at most 1000)")
         draw_level(last.topologies(), draw_path,
                    f"{last.kept} non-isomorphic configurations of {last.n} modules ({symmetry})")
         click.echo(f"drawing: {draw_path}", err=True)

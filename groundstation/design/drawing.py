@@ -63,13 +63,16 @@ def draw_level(topologies: Sequence[Topology], path: str | Path, title: str) -> 
         raise ValueError(f"{count} configurations are too many to draw legibly (at most {MAX_DRAWN})")
     cols = max(1, math.ceil(math.sqrt(count * 1.5)))
     rows = math.ceil(count / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(1.6 * cols, 1.6 * rows + 0.4), squeeze=False)
+    title_in = 0.6  # a band of its own for the title: tight_layout lays out the axes only, and the n = 7 sheet's
+    # title sat on its first row
+    height = 1.6 * rows + title_in
+    fig, axes = plt.subplots(rows, cols, figsize=(1.6 * cols, height), squeeze=False)
     span = 1.4 + max(max(max(x, y) for x, y in t.cells) for t in topologies)
     for k, ax in enumerate(axes.flat):
         if k < count:
             draw_topology(ax, topologies[k], f"({k + 1}) {topologies[k].code}", span=span)
         else:
             ax.axis("off")
-    fig.suptitle(title)
-    fig.tight_layout()
+    fig.suptitle(title, fontsize=14, y=1 - 0.15 * title_in / height)
+    fig.tight_layout(rect=(0, 0, 1, 1 - title_in / height))
     return save_figure(fig, path, dpi=110)

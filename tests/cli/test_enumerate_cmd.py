@@ -111,3 +111,23 @@ def test_ctrl_c_during_a_level_stops_at_once(tmp_path):
     assert [r["n"] for r in rows] == list(range(1, 12))  # the finished levels, and no level after
     assert "Traceback" not in err and "interrupted" in err
     assert "enumeration stopped in level 12; levels 1 to 11 are complete" in err
+
+
+@pytest.mark.parametrize("symmetry", ["C4", "D4", "none"])
+def test_the_largest_drawable_level_is_the_last_within_the_draw_limit(symmetry):
+    from groundstation.cli.enumerate_cmd import DRAW_LIMIT, LARGEST_DRAWABLE
+    from groundstation.design.enumeration import enumerate_levels
+
+    counts = [lv.non_isomorphic for lv in enumerate_levels(LARGEST_DRAWABLE[symmetry] + 1, symmetry)]
+    assert counts[-2] <= DRAW_LIMIT < counts[-1]
+
+
+def test_a_level_too_large_to_draw_is_refused_before_enumerating(cli, tmp_path):
+    """n = 40 would enumerate for longer than anyone waits: the refusal comes first, and nothing is drawn."""
+    png = tmp_path / "n40.png"
+    code, out, err = cli("enumerate", "40", "--draw", str(png))
+    assert code == 2 and out == "" and not png.exists()
+    assert err.strip() == ("groundstation: error: --draw: level n=40 (C4) has more than 1000 configurations, too "
+                           "many to draw; draw n <= 7, or sample it (--sample 1000 or less)")
+    code, _, err = cli("enumerate", "9", "--sample", "30", "--draw", str(tmp_path / "n9.png"))
+    assert code == 0 and (tmp_path / "n9.png").read_bytes()[:4] == b"\x89PNG"
