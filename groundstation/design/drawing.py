@@ -73,6 +73,8 @@ def draw_level(topologies: Sequence[Topology], path: str | Path, title: str) -> 
             draw_topology(ax, topologies[k], f"({k + 1}) {topologies[k].code}", span=span)
         else:
             ax.axis("off")
-    fig.suptitle(title, fontsize=14, y=1 - 0.15 * title_in / height)
+    # As large as reads well on a big sheet, small enough to fit a sheet of two (a character is ~0.6 em wide).
+    size = min(14.0, 0.95 * 72 * 1.6 * cols / (0.6 * len(title)))
+    fig.suptitle(title, fontsize=size, y=1 - 0.15 * title_in / height)
     fig.tight_layout(rect=(0, 0, 1, 1 - title_in / height))
     return save_figure(fig, path, dpi=110)
