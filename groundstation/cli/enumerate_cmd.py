@@ -8,6 +8,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from groundstation.choices import SAMPLING_SCHEMES, SYMMETRY_GROUPS
 from groundstation.cli.common import FINITE, SEED, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
@@ -21,13 +22,13 @@ refused before enumerating, not after minutes of it."""
 
 @click.command("enumerate")
 @click.argument("n", type=int)
-@click.option("--symmetry", default="C4", show_default=True,
+@click.option("--symmetry", type=click.Choice(SYMMETRY_GROUPS), default="C4", show_default=True,
               help="Isomorphism group: C4 (rotations, paper), D4 (rotations and mirrors) or none.")
 @click.option("--sample", "sample", type=int, default=None, metavar="N_n",
               help="Keep at most N_n configurations per level, drawn without replacement (Algorithm 1).")
 @click.option("--sigma", type=FINITE, default=1.0, show_default=True,
               help="Width of the Gaussian weight on the radius of gyration, in module pitches.")
-@click.option("--scheme", default="compact", show_default=True,
+@click.option("--scheme", type=click.Choice(SAMPLING_SCHEMES), default="compact", show_default=True,
               help="Sampling weights: compact (the paper's: near the smallest radius of gyration), uniform or "
                    "spread (near the largest).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed of the sampling.")

@@ -12,6 +12,7 @@ from rich.live import Live
 from rich.table import Table
 
 from groundstation.backend_kinds import KINDS, load
+from groundstation.choices import MOCAP_SYSTEMS
 from groundstation.cli.common import FINITE, FiniteFloat, json_safe, sim_physics_hz, stderr_console, writable_output
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
@@ -59,6 +60,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     Ctrl-C (or l) lands; a second Ctrl-C (or k) stops the motors at once. Exit status: 0 landed as planned or as
     asked, 1 failsafe, emergency stop, not started or the log failed, 2 bad input (an existing --log included),
     3 landed but degraded beyond the flight's bounds."""
+    from groundstation.flightlog.mcap_log import SUBPROTOCOLS
     from groundstation.runtime.flight import Requests, operator_landing
     from groundstation.runtime.fly import fly
 
@@ -96,7 +98,8 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     try:
         with KeyReader(requests):
             if live_port is not None:
-                click.echo(f"live: open Foxglove, connect to ws://127.0.0.1:{live_port}", err=True)
+                click.echo(f"live: open Foxglove (or Lichtblick 1.22 or later), connect to ws://127.0.0.1:{live_port} "
+                           f"(WebSocket subprotocol {' or '.join(SUBPROTOCOLS)})", err=True)
             result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
                          handle_signals=True, activity=activity, live_port=live_port)
     finally:
@@ -171,7 +174,7 @@ def recover_command(src: str, dst: str) -> int:
 
 
 @click.command("mocap-bridge")
-@click.option("--system", required=True, help="vicon, optitrack, qualisys, vrpn or mock.")
+@click.option("--system", type=click.Choice(MOCAP_SYSTEMS), required=True, help="The mocap system's SDK.")
 @click.option("--host", default="", help="Mocap server address (unused for mock).")
 @click.option("--bodies", required=True, help="Comma-separated rigid body names to publish.")
 @click.option("--endpoint", default="tcp/127.0.0.1:7448", show_default=True, help="Zenoh endpoint to listen on.")

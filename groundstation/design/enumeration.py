@@ -18,12 +18,13 @@ import numpy as np
 
 from groundstation.assembly.lattice import group_matrices
 from groundstation.assembly.topology import Topology
+from groundstation.choices import SAMPLING_SCHEMES
 from groundstation.design import kernels
 from groundstation.design.interrupt import run_interruptible
 from groundstation.errors import UsageError
 
 Scheme = Literal["compact", "uniform", "spread"]
-SCHEMES: tuple[str, ...] = ("compact", "uniform", "spread")
+SCHEMES = SAMPLING_SCHEMES
 
 
 @dataclass(frozen=True)

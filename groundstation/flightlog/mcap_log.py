@@ -21,7 +21,11 @@ writer is started as ``python -m groundstation.flightlog.mcap_log``, not with mu
 would re-run the caller's main script in the child unless it is guarded by ``if __name__ == "__main__"``.
 
 Live view: with ``live_port``, the writer process also serves every record over the Foxglove WebSocket protocol
-(``foxglove-sdk``), so Foxglove shows the flight as it happens, at no cost to the flight process.
+(``foxglove-sdk``), so Foxglove shows the flight as it happens, at no cost to the flight process. What is written
+once per flight (the scene, the body -> module transforms: ``static`` messages) is sent again to every client that
+subscribes to its channel, and to all every :data:`RESEND_S`: it is written before the server starts, and a client
+that connects mid-flight would otherwise never get it. The SDK's own warnings (a client refused at its handshake,
+a subscription to an unknown channel) go to ``/log``: printed, they would land in the pilot's status line.
 
 Robustness: chunks are small (32 KiB) and the file is flushed about once a second. :meth:`FlightLog.close`
 finishes the file (summary, footer) and is called on normal exit, Ctrl-C and SIGTERM. If the flight process is
@@ -38,6 +42,7 @@ import array
 import contextlib
 import fcntl
 import json
+import logging
 import math
 import os
 import pickle
@@ -260,20 +265,22 @@ class FlightLog:
         return self._error
 
     # -- producer side (any thread) ------------------------------------------------------------------------------
-    def protobuf(self, topic: str, message, t: float) -> None:
-        self.raw_protobuf(topic, type(message), message.SerializeToString(), t)
+    def protobuf(self, topic: str, message, t: float, static: bool = False) -> None:
+        self.raw_protobuf(topic, type(message), message.SerializeToString(), t, static=static)
 
     def raw_protobuf(self, topic: str, message_type, payload: bytes, t: float,
-                     publish_time: float | None = None) -> None:
+                     publish_time: float | None = None, static: bool = False) -> None:
         """Log already-serialized protobuf bytes (e.g. a Zenoh payload) under ``message_type``'s schema, at log time
-        ``t``; ``publish_time`` (default ``t``) is when the source produced it (s since the epoch)."""
+        ``t``; ``publish_time`` (default ``t``) is when the source produced it (s since the epoch). ``static``: the
+        message holds for the whole flight (written once, sent again to live clients, see :class:`_Live`)."""
         name = message_type.DESCRIPTOR.full_name
         if name not in self._schemas:  # once per type, before its first message
             # Queued before the name is marked sent, so another thread's message of this type cannot overtake it
             # (two threads may both send it; the writer registers it once).
             self._put(("schema", name, build_file_descriptor_set(message_type).SerializeToString(), t))
             self._schemas.add(name)
-        self._put(("pb", topic, (name, payload, t if publish_time is None else publish_time), t))
+        self._put(("static" if static else "pb", topic, (name, payload, t if publish_time is None else publish_time),
+                   t))
 
     def record(self, topic: str, data: dict, t: float) -> None:
         """A JSON record; numpy values are converted by the writer (pass copies of arrays you reuse)."""
@@ -291,8 +298,8 @@ class FlightLog:
         """The assembly (frame-locked to ``body``), the module frames, the reference path and the geofence (see
         :mod:`groundstation.flightlog.scene`)."""
         for tf in module_transforms(assembly, t):
-            self.protobuf("/tf", tf, t)
-        self.protobuf("/scene", scene(assembly, t, reference, geofence), t)
+            self.protobuf("/tf", tf, t, static=True)
+        self.protobuf("/scene", scene(assembly, t, reference, geofence), t, static=True)
 
     def _put(self, item) -> None:
         if self._closed or self._error is not None:
@@ -425,27 +432,79 @@ LIBRARY = "groundstation"
 """The MCAP header's library field: how replay recognizes a flight log of this program."""
 
 
+RESEND_S = 1.0
+"""The live view sends the static messages (scene, module transforms) to every client this often, besides once to
+each client that subscribes to their channel (one that missed that, or whose panel was cleared, gets them within
+this), s."""
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.sdk.v1.1")
+"""The WebSocket subprotocols the live view speaks: foxglove-sdk 0.30.3's, fixed by it (its ``websocket/handshake.rs``
+picks the newest of exactly these two names among those a client offers and answers a client that offers neither
+with HTTP 400; ``start_server`` has no option for it). A client offering only the older ``foxglove.websocket.v1``
+(``@foxglove/ws-protocol``'s default, Lichtblick before 1.22) is refused: README, "In Foxglove"."""
+
+
+class _SdkLog(logging.Handler):
+    """Records of the SDK's loggers (``foxglove.*``; written by its server's threads), kept for the writer to put on
+    ``/log``. Without a handler of their own they reach Python's last-resort handler, which prints them on the
+    terminal the flight shares with the writer process: over the pilot's status line."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.records: deque[logging.LogRecord] = deque()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
 class _Live:
-    """Every written record also served over the Foxglove WebSocket protocol (``foxglove-sdk``).
+    """Every written record also served over the Foxglove WebSocket protocol (``foxglove-sdk``, subprotocols
+    :data:`SUBPROTOCOLS`).
 
     The server starts with the first ``/control`` record, once the flight has created the channels a client
     subscribes to at once (mocap, transforms, scene, state, control): channels that exist when a client connects
     are advertised with the connection, while foxglove-sdk 0.30.3 can refuse a subscription sent the instant a
     channel is advertised to an already connected client (3 runs in 8 under a CPU hog: "Unknown channel ID"). The
-    Foxglove app retries its connection until the server is up."""
+    Foxglove app retries its connection until the server is up.
+
+    Static messages (``static`` in :meth:`publish`) are written before the server starts, so a client would never
+    get them: :meth:`serve` sends them again on each channel a client subscribed to (the SDK reports the
+    subscription on its own thread, after registering it: the message reaches the new subscriber), and on all
+    every :data:`RESEND_S`. Sent to a channel, they reach each of its subscribers; those that have them already
+    replace them with the same (a scene entity by its id, a transform by its frames)."""
 
     START_TOPIC = "/control"
 
     def __init__(self, port: int) -> None:
+        # Before the server starts: the SDK forwards its records through pyo3-log, which caches each Python
+        # logger's level at its first record. Warnings and errors, as the last-resort handler printed them.
+        self.log = _SdkLog()
+        sdk_logger = logging.getLogger("foxglove")
+        sdk_logger.addHandler(self.log)
+        sdk_logger.setLevel(logging.WARNING)
+        sdk_logger.propagate = False  # nor through a handler the root logger may have
         import foxglove
 
         self._foxglove = foxglove
         self.port = port
         self._server = None
         self._channels: dict[str, object] = {}
+        self._static: dict[str, list[bytes]] = {}
+        """topic -> the payloads of its static messages, in the order written."""
+        self._subscribed: deque[str] = deque()
+        """Topics a client subscribed to since the last :meth:`serve` (appended by the SDK's thread)."""
+        self._resent = time.monotonic()
+
+    def on_subscribe(self, client, channel) -> None:
+        """The SDK's ``ServerListener`` callback (its thread): only noted, :meth:`serve` sends (the writer's thread
+        does all the logging)."""
+        self._subscribed.append(channel.topic)
+
+    def on_unsubscribe(self, client, channel) -> None:
+        """Nothing to do; defined because the SDK calls it at every unsubscription and disconnection and logs an
+        error ("Callback failed") for a listener without it."""
 
     def publish(self, topic: str, encoding: str, schema_name: str, schema_encoding: str, schema: bytes,
-                payload: bytes, ns: int) -> None:
+                payload: bytes, ns: int, static: bool = False) -> None:
         """Raises what starting the server raises (a port in use) at the first ``/control`` record."""
         ch = self._channels.get(topic)
         if ch is None:
@@ -454,8 +513,24 @@ class _Live:
                                                     schema=fg.Schema(name=schema_name, encoding=schema_encoding,
                                                                      data=schema))
         ch.log(payload, log_time=ns)
+        if static:
+            self._static.setdefault(topic, []).append(payload)
         if self._server is None and topic == self.START_TOPIC:
-            self._server = self._foxglove.start_server(name="groundstation", host="127.0.0.1", port=self.port)
+            self._server = self._foxglove.start_server(name="groundstation", host="127.0.0.1", port=self.port,
+                                                       server_listener=self)
+
+    def serve(self, ns: int) -> None:
+        """Send the static messages of each channel subscribed to since the last call, or of all every
+        :data:`RESEND_S`, at log time ``ns`` (the clients' clock is the log times they receive)."""
+        topics = set()
+        while self._subscribed:
+            topics.add(self._subscribed.popleft())
+        if self._server is not None and time.monotonic() - self._resent >= RESEND_S:
+            self._resent = time.monotonic()
+            topics = set(self._static)
+        for topic in topics:
+            for payload in self._static.get(topic, ()):
+                self._channels[topic].log(payload, log_time=ns)
 
     def close(self) -> None:
         if self._server is not None:
@@ -505,22 +580,25 @@ class _Writer:
                                          "protobuf", data)
         return self._channels[topic]
 
-    def _add(self, topic: str, schema: str | None, payload: bytes, ns: int, publish_ns: int | None = None) -> None:
-        """One message; ``ns`` and ``publish_ns`` are valid MCAP times (:func:`stamp_ns`)."""
+    def _add(self, topic: str, schema: str | None, payload: bytes, ns: int, publish_ns: int | None = None,
+             static: bool = False) -> None:
+        """One message; ``ns`` and ``publish_ns`` are valid MCAP times (:func:`stamp_ns`); ``static``: see
+        :class:`_Live`."""
         cid, encoding, schema_name, schema_encoding, schema_data = self._channel(topic, schema)
         self._mcap.add_message(cid, log_time=ns, data=payload, publish_time=ns if publish_ns is None else publish_ns)
         self._last_ns = ns
         if self._live is not None:
             try:
-                self._live.publish(topic, encoding, schema_name, schema_encoding, schema_data, payload, ns)
+                self._live.publish(topic, encoding, schema_name, schema_encoding, schema_data, payload, ns, static)
             except Exception as exc:  # noqa: BLE001 - a port in use must not cost the log
                 port, self._live = self._live.port, None
                 self._note(Log.WARNING, f"live view on port {port} unavailable: {exc}", ns)
 
-    def _note(self, level: int, text: str, ns: int | None = None) -> None:
-        """An event of the writer's own on ``/log`` (at ``ns``, default the last message's log time)."""
+    def _note(self, level: int, text: str, ns: int | None = None, name: str = "groundstation.log") -> None:
+        """An event of the writer's own (or of ``name``, a library it uses) on ``/log`` (at ``ns``, default the last
+        message's log time)."""
         ns = ns if ns is not None else self._last_ns or stamp_ns(time.time())
-        msg = Log(timestamp=_stamp(ns * 1e-9), level=level, name="groundstation.log", message=text)
+        msg = Log(timestamp=_stamp(ns * 1e-9), level=level, name=name, message=text)
         self._add("/log", Log.DESCRIPTOR.full_name, msg.SerializeToString(), ns)
 
     def _reject(self, topic: str, what: str, detail: str) -> None:
@@ -541,13 +619,13 @@ class _Writer:
         if ns is None:
             self._reject(topic, "log time", f"its log time {t!r} is not a time (finite, non-negative, before 2554)")
             return
-        if kind == "pb":
+        if kind in ("pb", "static"):
             publish_ns = stamp_ns(data[2])
             if publish_ns is None:
                 self._reject(topic, "publish time",
                              f"its publish time {data[2]!r} is not a time (finite, non-negative, before 2554)")
                 return
-            self._add(topic, data[0], data[1], ns, publish_ns)
+            self._add(topic, data[0], data[1], ns, publish_ns, static=kind == "static")
             return
         try:  # encoding: what fails here is the record's (a value that does not convert), not the disk's
             if kind == "pose":
@@ -571,6 +649,17 @@ class _Writer:
 
     def flush(self) -> None:
         self._fh.flush()
+
+    def serve(self) -> None:
+        """The live view's share of the writer's thread (called after every batch, and every :data:`POLL_S` without
+        one): the static messages its clients need (:meth:`_Live.serve`) and the SDK's warnings, onto ``/log``."""
+        if self._live is None:
+            return
+        self._live.serve(self._last_ns)
+        records = self._live.log.records
+        while records:
+            r = records.popleft()
+            self._note(LEVELS.get(r.levelname.lower(), Log.FATAL), r.getMessage(), name=r.name)
 
     def note_unfinished(self) -> None:
         """The input ended without "stop": the flight process was killed or crashed (or could not hand over the
@@ -630,7 +719,10 @@ def _writer_main() -> None:
                     writer.write(item)
             if stopped:
                 break
-            if writer is not None and time.monotonic() - last_flush >= FLUSH_S:
+            if writer is None:
+                continue
+            writer.serve()
+            if time.monotonic() - last_flush >= FLUSH_S:
                 writer.flush()
                 last_flush = time.monotonic()
     except Exception as exc:  # reported to the flight process (it watches for it in flight)

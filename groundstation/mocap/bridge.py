@@ -19,12 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from groundstation.choices import MOCAP_SYSTEMS
 from groundstation.errors import UsageError
 from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, Security, open_session, pose_key
 from groundstation.rotations import quat_to_matrix
 
-SYSTEMS = ("vicon", "optitrack", "qualisys", "vrpn", "mock")
+SYSTEMS = MOCAP_SYSTEMS
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 

@@ -33,7 +33,7 @@ def test_sampled_json(cli):
 
 @pytest.mark.parametrize("args, fragment", [
     (["enumerate", "0"], "at least 1"),
-    (["enumerate", "4", "--symmetry", "C3"], "unknown symmetry group"),
+    (["enumerate", "4", "--symmetry", "C3"], "'C3' is not one of 'C4', 'D4', 'none'"),
     (["enumerate", "4", "--sample", "0"], "at least 1"),
     (["enumerate", "4", "--out", "/nonexistent-dir/x.json"], "does not exist"),
     (["enumerate", "4", "--out", "x.csv"], "unsupported file type"),

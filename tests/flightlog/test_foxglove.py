@@ -1,8 +1,10 @@
 """What Foxglove gets from a flight, checked with Foxglove's official protobuf schemas: the scene and transform
-tree that make the assembly move in the 3D panel, and the live view (the JSON channels and the shipped layout by
-Foxglove's own rules: :mod:`tests.flightlog.test_schemas`)."""
+tree that make the assembly move in the 3D panel, and the live view, by a client speaking the Foxglove WebSocket
+protocol (the JSON channels and the shipped layout by Foxglove's own rules: :mod:`tests.flightlog.test_schemas`)."""
 
 import json
+import logging
+import os
 import struct
 import threading
 import time
@@ -11,13 +13,16 @@ import numpy as np
 import pytest
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
+from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 from mcap_protobuf.schema import build_file_descriptor_set
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from groundstation.assembly.assembly_file import load_assembly
+from groundstation.flightlog.mcap_log import SUBPROTOCOLS, _Live
+from groundstation.flightlog.scene import scene
 from groundstation.runtime.flight import Requests
 from groundstation.runtime.fly import fly
 from tests.peers import ROOT
@@ -25,65 +30,201 @@ from tests.runtime.test_fly import config_with
 
 LIVE_PORT = 8791
 ASM, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+MODULE_FRAMES = {("body", f"module_{i}") for i in range(ASM.n)}
+FRAMES = MODULE_FRAMES | {("world", "body")}
+"""(parent, child) of every transform: the estimate's, every period, and one per module."""
+LATE_CLIENT_S = 10.0
+"""How long the client that connects mid-flight waits for the scene and every transform: they come when it
+subscribes (and again every second), so on a slow machine this only bounds a failing run, s."""
+DECODERS = {"foxglove.SceneUpdate": SceneUpdate, "foxglove.FrameTransform": FrameTransform}
+
+
+class Client:
+    """A Foxglove WebSocket client (subprotocol ``foxglove.sdk.v1``, the one with inline schemas): subscribes to
+    ``topics`` as they are advertised and keeps what arrives on them, decoded by the advertised encoding and schema
+    name (protobuf by Foxglove's official classes, JSON), and the server's status messages."""
+
+    def __init__(self, ws, topics: tuple[str, ...]) -> None:
+        self.ws = ws
+        self.advertised: dict[str, dict] = {}
+        """topic -> its channel as advertised (id, encoding, schemaName, ...)."""
+        self.received: dict[str, list] = {t: [] for t in topics}
+        self.status: list[str] = []
+        self._subscriptions: dict[int, str] = {}
+        """subscription id -> topic."""
+
+    def poll(self, timeout: float) -> None:
+        """Handle what arrives within ``timeout`` s (at most one message); raises ConnectionClosed at the end."""
+        try:
+            msg = self.ws.recv(timeout=timeout)
+        except TimeoutError:
+            return
+        if isinstance(msg, str):
+            op = json.loads(msg)
+            if op["op"] == "advertise":
+                self._subscribe(op["channels"])
+            elif op["op"] == "status":  # e.g. "Unknown channel ID": a refused subscription
+                self.status.append(op["message"])
+        elif msg[0] == 0x01:  # message data: opcode, subscription id (u32), log time (u64, ns), payload
+            topic = self._subscriptions[struct.unpack_from("<I", msg, 1)[0]]
+            ch = self.advertised[topic]
+            payload = msg[13:]
+            self.received[topic].append(json.loads(payload) if ch["encoding"] == "json"
+                                        else DECODERS[ch["schemaName"]].FromString(payload))
+
+    def _subscribe(self, channels: list[dict]) -> None:
+        wanted = []
+        for ch in channels:
+            self.advertised[ch["topic"]] = ch
+            if ch["topic"] in self.received and ch["topic"] not in self._subscriptions.values():
+                sid = len(self._subscriptions) + 1
+                self._subscriptions[sid] = ch["topic"]
+                wanted.append({"id": sid, "channelId": ch["id"]})
+        if wanted:
+            self.ws.send(json.dumps({"op": "subscribe", "subscriptions": wanted}))
+
+    def frames(self) -> set[tuple[str, str]]:
+        """(parent, child) of every transform received on ``/tf``."""
+        return {(tf.parent_frame_id, tf.child_frame_id) for tf in self.received["/tf"]}
+
+
+def _watch_until(client: Client, done, deadline: float) -> None:
+    """Poll ``client`` until ``done()`` or the deadline (or the flight's end: the assertions say what was missed)."""
+    while not done() and time.monotonic() < deadline:
+        try:
+            client.poll(1.0)
+        except ConnectionClosed:
+            return
 
 
 @pytest.fixture(scope="module")
 def live_flight(tmp_path_factory):
-    """A dry run served live; a client subscribed to /control records what it saw. The flight tracks until the
-    client has seen it tracking (the operator's land request ends it), so a slow machine only makes it longer."""
+    """A dry run served live, watched by three clients in turn, and what the log writer printed (its standard error
+    is the terminal's: the pilot's status line). The first client, subscribed to /control from the start, records
+    what it saw; the flight tracks until it has seen it tracking (the operator's land request ends the flight, so
+    a slow machine only makes it longer). Mid-flight, a client offering only the older subprotocol
+    ``foxglove.websocket.v1`` is refused, and a third one subscribes to /scene and /tf until it has the scene and
+    every transform (or :data:`LATE_CLIENT_S` has passed)."""
     tmp = tmp_path_factory.mktemp("foxglove")
     cfg = config_with(tmp, endpoint="tcp/127.0.0.1:7488")
-    log = tmp / "live.mcap"
+    log, stderr = tmp / "live.mcap", tmp / "stderr.txt"
     result = {}
     requests = Requests()
     flight = threading.Thread(target=lambda: result.update(res=fly(cfg, duration=60.0, log_path=log,
                                                                    live_port=LIVE_PORT, requests=requests)))
-    flight.start()
-    seen = {"advertised": set(), "messages": 0, "tracking": 0, "status": []}
-    deadline = time.monotonic() + 90.0
-    ws = None
-    while ws is None and time.monotonic() < deadline and flight.is_alive():
-        try:
-            ws = connect(f"ws://127.0.0.1:{LIVE_PORT}", subprotocols=["foxglove.sdk.v1"], open_timeout=1)
-        except OSError:
-            time.sleep(0.1)
-    assert ws is not None, "the live view never came up"
-    with ws:
-        subscribed = False
-        while time.monotonic() < deadline and seen["tracking"] < 10:
+    seen = {}
+    terminal = os.dup(2)
+    with open(stderr, "wb") as fh:  # the writer process inherits this descriptor as its standard error
+        os.dup2(fh.fileno(), 2)
+    try:
+        flight.start()
+        deadline = time.monotonic() + 90.0
+        ws = None
+        while ws is None and time.monotonic() < deadline and flight.is_alive():
             try:
-                msg = ws.recv(timeout=1.0)
-            except TimeoutError:
-                continue
-            except ConnectionClosed:  # the flight ended: the assertions below say what was missed
-                break
-            if isinstance(msg, str):
-                op = json.loads(msg)
-                if op["op"] == "advertise":
-                    for ch in op["channels"]:
-                        seen["advertised"].add(ch["topic"])
-                        if ch["topic"] == "/control" and not subscribed:
-                            ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1,
-                                                                                      "channelId": ch["id"]}]}))
-                            subscribed = True
-                elif op["op"] == "status":  # e.g. "Unknown channel ID": a refused subscription
-                    seen["status"].append(op["message"])
-            elif msg[0] == 0x01 and struct.unpack_from("<I", msg, 1)[0] == 1:
-                record = json.loads(msg[13:])
-                seen["messages"] += 1
-                seen["tracking"] += record["phase"] == "track"
-                seen["last"] = record
-    requests.land.set()
-    flight.join(120)
-    return result["res"], log, seen
+                ws = connect(f"ws://127.0.0.1:{LIVE_PORT}", subprotocols=[SUBPROTOCOLS[0]], open_timeout=1)
+            except OSError:
+                time.sleep(0.1)
+        assert ws is not None, "the live view never came up"
+        with ws:
+            first = Client(ws, ("/control",))
+            _watch_until(first, lambda: sum(r["phase"] == "track" for r in first.received["/control"]) >= 10,
+                         deadline)
+        seen["first"] = first
+        try:  # mid-flight (a flight that ended early, e.g. a failsafe, refuses the connections: the tests say why)
+            try:  # what the @foxglove/ws-protocol client and Lichtblick before 1.22 offer
+                connect(f"ws://127.0.0.1:{LIVE_PORT}", subprotocols=["foxglove.websocket.v1"], open_timeout=5).close()
+                seen["old_subprotocol"] = "accepted"
+            except InvalidStatus as exc:
+                seen["old_subprotocol"] = exc.response.status_code
+            with connect(f"ws://127.0.0.1:{LIVE_PORT}", subprotocols=[SUBPROTOCOLS[0]], open_timeout=5) as ws:
+                late = Client(ws, ("/scene", "/tf"))
+                seen["late_while_tracking"] = flight.is_alive() and not requests.land.is_set()
+                _watch_until(late, lambda: late.received["/scene"] and late.frames() >= FRAMES,
+                             time.monotonic() + LATE_CLIENT_S)
+            seen["late"] = late
+        except OSError as exc:
+            seen["mid_flight"] = f"{type(exc).__name__}: {exc}"
+    finally:
+        requests.land.set()
+        flight.join(120)
+        os.dup2(terminal, 2)
+        os.close(terminal)
+    return result["res"], log, seen, stderr.read_text()
+
+
+def _mid_flight(live_flight) -> dict:
+    """What the clients that connected mid-flight saw; fails naming how the flight ended if none could."""
+    res, _, seen, _ = live_flight
+    assert "late" in seen, f"the flight ended ({res.phase}: {res.reason}) before a client connected mid-flight " \
+                           f"({seen.get('mid_flight')})"
+    return seen
 
 
 def test_the_live_view_serves_the_flight(live_flight):
-    res, _, seen = live_flight
+    res, _, seen, _ = live_flight
+    first = seen["first"]
     assert res.phase == "done" and res.reason == "operator land"
-    assert {"/control", "/tf", "/state/pose", "/mocap/assembly"} <= seen["advertised"]
-    assert seen["status"] == []
-    assert seen["tracking"] >= 10 and "modules" in seen["last"] and "attitude_target" in seen["last"]
+    assert {"/control", "/tf", "/state/pose", "/mocap/assembly", "/scene"} <= set(first.advertised)
+    assert first.status == []
+    records = first.received["/control"]
+    assert sum(r["phase"] == "track" for r in records) >= 10
+    assert "modules" in records[-1] and "attitude_target" in records[-1]
+
+
+def test_a_client_connecting_mid_flight_gets_the_scene_and_every_transform(live_flight):
+    """The scene and the body -> module transforms are written once, before the server starts: a client gets them
+    because they are sent to each one that subscribes (and to all every second)."""
+    seen = _mid_flight(live_flight)
+    late = seen["late"]
+    assert seen["late_while_tracking"]  # it connected while the flight was tracking, long after the scene was written
+    assert late.status == []
+    assert (late.advertised["/scene"]["encoding"], late.advertised["/scene"]["schemaName"]) == \
+        ("protobuf", "foxglove.SceneUpdate")
+    assert late.advertised["/tf"]["schemaName"] == "foxglove.FrameTransform"
+    assert late.received["/scene"], "no scene reached a client that connected mid-flight"
+    upd = late.received["/scene"][-1]
+    ents = {e.id: e for e in upd.entities}
+    assert set(ents) == {"assembly", "reference", "geofence"}
+    assert ents["assembly"].frame_id == "body" and len(ents["assembly"].cubes) == ASM.n
+    assert late.frames() == FRAMES  # every transform, and only those
+    for i, p in enumerate(ASM.module_positions):
+        tf = next(tf for tf in late.received["/tf"] if tf.child_frame_id == f"module_{i}")
+        np.testing.assert_allclose([tf.translation.x, tf.translation.y, tf.translation.z], p, atol=1e-12)
+
+
+def test_a_refused_client_is_logged_not_printed(live_flight):
+    """The SDK refuses a client that offers only ``foxglove.websocket.v1`` (its handshake knows the sdk
+    subprotocols only); that goes to the flight's /log, not over the pilot's status line."""
+    _, log, _, printed = live_flight
+    assert _mid_flight(live_flight)["old_subprotocol"] == 400
+    events = [Log.FromString(m.data) for _, m in _messages(log, "/log")]
+    refusals = [e for e in events if "handshake failed" in e.message]
+    assert refusals and all(e.name.startswith("foxglove.") and e.level == Log.ERROR for e in refusals)
+    assert "handshake failed" not in printed and "Dropping client" not in printed
+
+
+def test_a_new_subscriber_gets_the_static_messages_at_once():
+    """Without a flight: a client subscribing to /scene gets the scene written before the server started at the
+    writer's next turn (:meth:`_Live.serve`), not only at the once-a-second resend."""
+    live = _Live(0)
+    try:
+        live.publish("/scene", "protobuf", "foxglove.SceneUpdate", "protobuf",
+                     build_file_descriptor_set(SceneUpdate).SerializeToString(), scene(ASM, 1.0).SerializeToString(),
+                     10**9, static=True)
+        live.publish("/control", "json", "control", "jsonschema", b"{}", b"{}", 10**9)  # starts the server
+        with connect(f"ws://127.0.0.1:{live._server.port}", subprotocols=[SUBPROTOCOLS[0]], open_timeout=5) as ws:
+            client = Client(ws, ("/scene",))
+            deadline = time.monotonic() + 5.0
+            while not live._subscribed and time.monotonic() < deadline:  # the SDK reports it on its own thread
+                client.poll(0.05)
+            live.serve(2 * 10**9)
+            while not client.received["/scene"] and time.monotonic() < deadline:
+                client.poll(0.1)
+        assert [u.entities[0].id for u in client.received["/scene"]] == ["assembly"]
+    finally:
+        live.close()
+        logging.getLogger("foxglove").removeHandler(live.log)
 
 
 def _messages(log, topic):
@@ -92,7 +233,7 @@ def _messages(log, topic):
 
 
 def test_scene_and_transforms_with_the_official_schemas(live_flight):
-    _, log, _ = live_flight
+    _, log, _, _ = live_flight
     (schema, msg), = _messages(log, "/scene")
     # The schema in the log is the official SceneUpdate's: Foxglove decodes it as its built-in type.
     assert schema.name == "foxglove.SceneUpdate"
@@ -126,7 +267,7 @@ def test_scene_and_transforms_with_the_official_schemas(live_flight):
 
 
 def test_json_channels_carry_schemas_with_the_fields(live_flight):
-    _, log, _ = live_flight
+    _, log, _, _ = live_flight
     (schema, msg), *_ = _messages(log, "/control")
     assert schema.encoding == "jsonschema"
     props = json.loads(schema.data)["properties"]
