@@ -61,9 +61,11 @@ class SimulatedWorld:
         """The physics state, logged beside the mocap estimate."""
         return self.backend.true_state
 
-    def settle(self, dt: float) -> None:
-        """Let ``dt`` pass before the flight (preflight): the assembly settles on the ground."""
-        self.backend.advance_to(self.backend.time + dt)
+    def settle(self, t: float) -> None:
+        """Preflight: ``t`` s have passed since it began; the physics (from 0) catches up, and the assembly settles
+        on the ground. Kept on the wall clock so that the virtual mocap's poses come at its rate: 0.02 s of
+        physics for every ~10 ms turn of the preflight's watch sent a 100 Hz stream at 215 Hz."""
+        self.backend.advance_to(t)
 
     def before_period(self, on_period: Callable[[float], None] | None) -> Callable[[float], None]:
         """What runs at the start of every period: the faults applied, the caller's hook, physics to time ``t``."""

@@ -14,21 +14,26 @@ from rich.table import Table
 from groundstation.cli.common import FINITE, json_safe, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
-ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "tracked s"), ("pos_rmse_m", "position RMSE (m)"),
-        ("max_pos_error_m", "max position error (m)"), ("max_orientation_error_deg", "max attitude error (deg)"),
-        ("orientation_error_p95_deg", "attitude error p95 (deg)"), ("max_roll_error_deg", "max roll error (deg)"),
-        ("max_yaw_error_deg", "max yaw error (deg)"), ("max_motor_fraction", "max rotor (u/u_max)"),
-        ("saturation_fraction", "saturated (airborne, per module)"),
-        ("motor_change_rms", "rotor change per period RMS (u/u_max)"),
+ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "flight time analysed (s)"),
+        ("tracked_s", "tracking time (s)"), ("pos_rmse_m", "position RMSE, tracking (m)"),
+        ("max_pos_error_m", "max position error, tracking (m)"),
+        ("max_orientation_error_deg", "max attitude error, airborne (deg)"),
+        ("orientation_error_p95_deg", "attitude error p95, airborne (deg)"),
+        ("max_roll_error_deg", "max roll error, airborne (deg)"),
+        ("max_yaw_error_deg", "max yaw error, airborne (deg)"),
+        ("max_motor_fraction", "max rotor (u/u_max)"), ("saturation_fraction", "saturated (airborne, per module)"),
+        ("motor_change_rms", "rotor change per period RMS, tracking (u/u_max)"),
         ("loop_period_error_p99_ms", "loop start error p99 (ms)"), ("overruns", "late periods"),
         ("stalls", "loop stalls"),
-        ("mocap_rate_hz", "mocap rate (Hz)"), ("mocap_age_p99_ms", "mocap age p99 (ms)"),
+        ("mocap_rate_hz", "mocap rate, poses arrived (Hz)"), ("mocap_age_p99_ms", "mocap age p99 (ms)"),
         ("mocap_rejected", "mocap rejected"), ("mocap_malformed", "mocap malformed"),
         ("estimator_rejected", "poses the estimator rejected"),
         ("estimator_late", "poses too late for the estimator"), ("position_sigma_max_m", "position std max (m)"),
         ("innovation_position_p95_mm", "innovation p95 (mm)"), ("innovation_attitude_p95_deg", "innovation p95 (deg)"),
         ("battery_v_min", "battery min (V)"), ("link_latency_ms_max", "link round trip max (ms)"),
         ("link_loss_max", "link loss max"))
+"""(figure, label) of the table's rows; a figure over part of the flight says which (tracking: the tracking
+phase; airborne: settle, tracking and hold), the others cover every period analysed."""
 
 
 def _cell(v) -> str:
@@ -41,9 +46,11 @@ def _cell(v) -> str:
 
 @click.command("replay")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON (one object per log).")
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON: a list of one object per log, in "
+              "the order given (whatever their number).")
 @click.option("--plot", default=None, metavar="FILE.png", help="Write the Fig. 9-style figure, logs overlaid.")
-@click.option("--csv", "csv_dir", default=None, metavar="DIR", help="Write each log's periods and events as CSV.")
+@click.option("--csv", "csv_dir", default=None, metavar="DIR", help="Write each log's periods, mocap poses and "
+              "events (in the window) as CSV into DIR (made if missing).")
 @click.option("--from", "t_from", type=FINITE, default=None, help="Start of the window, flight time s.")
 @click.option("--to", "t_to", type=FINITE, default=None, help="End of the window, flight time s.")
 @click.option("--rerun", is_flag=True, help="Feed the logged states through this code's controller and "
@@ -61,10 +68,15 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
     from groundstation.replay.analysis import analyse
 
     plot_path = writable_output(plot, (".png", ".svg", ".pdf")) if plot else None
-    if csv_dir is not None and not Path(csv_dir).is_dir():
-        raise UsageError(f"{csv_dir}: not a directory")
     if t_from is not None and t_to is not None and t_to <= t_from:
         raise UsageError(f"--to ({t_to:g}) must be after --from ({t_from:g})")
+    if csv_dir is not None:
+        try:
+            Path(csv_dir).mkdir(parents=True, exist_ok=True)
+        except FileExistsError:
+            raise UsageError(f"{csv_dir}: not a directory") from None
+        except OSError as exc:
+            raise UsageError(f"{csv_dir}: cannot make the directory: {exc.strerror}") from None
     gains = allocation = None
     if rerun_with is not None:
         from groundstation.control.geometric import Gains
@@ -97,8 +109,14 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
     if plot_path is not None:
         from groundstation.replay.plots import plot_replays
 
-        plot_replays(replays, plot_path)
-        click.echo(f"plot: {plot_path}", err=True)
+        flown = [r for r in replays if r.metrics.periods]
+        for r in replays:
+            if not r.metrics.periods:
+                click.echo(f"groundstation: warning: {r.path.name}: not plotted: it never flew (no control period)",
+                           err=True)
+        if flown:
+            plot_replays(flown, plot_path)
+            click.echo(f"plot: {plot_path}", err=True)
     if as_json:
         objs = [json_safe({"log": str(r.path), "complete": r.complete, "warnings": list(r.warnings),
                            **asdict(r.metrics),
@@ -107,9 +125,11 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
                            **({"rerun": asdict(r.rerun)} if r.rerun is not None else {}),
                            **({"gyro_lag": asdict(lags[r.path]) | {"found": lags[r.path].found}} if lags else {})})
                 for r in replays]
-        click.echo(json.dumps(objs[0] if len(objs) == 1 else objs))
+        click.echo(json.dumps(objs))
         return 0
-    table = Table(title="flight logs")
+    window = "" if t_from is None and t_to is None else \
+        f", flight time {'start' if t_from is None else f'{t_from:g} s'} to {'end' if t_to is None else f'{t_to:g} s'}"
+    table = Table(title="flight logs" + window)
     table.add_column("")
     for r in replays:
         table.add_column(r.path.name + ("" if r.complete else " (damaged)" if r.warnings else " (cut short)"))

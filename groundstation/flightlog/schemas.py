@@ -80,6 +80,10 @@ CONTROL = _obj("one control period", {
     "command_min_frac_umax": _num("the smallest, fraction of u_max (0: a rotor at its lower bound)"),
     "motors_off": {"type": "boolean", "description": "the motors were commanded off in this period"},
     "mocap_age_s": _num("time since the capture of the newest pose fused, s (absent before the first)"),
+    "mocap": _obj("the pose subscriber's counters so far (as /mocap/stats has them once a second)", {
+        "rejected": {"type": "integer", "description": "jumps, stale or out-of-order samples"},
+        "malformed": {"type": "integer", "description": "samples that did not decode"},
+        "missed": {"type": "integer", "description": "gaps in the publisher's sequence"}}),
     "estimate": _obj("the estimator's uncertainty and health", {
         "position_sigma_m": _num("position std per axis, m"),
         "velocity_sigma_mps": _num("velocity std per axis, m/s"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.errors import ConfigError
-from groundstation.replay.reader import commands, open_log
+from groundstation.replay.reader import commands, is_mocap_pose, open_log
 from groundstation.rotations import quat_to_matrix
 from groundstation.runtime.metrics import FlightFigures, FlightMetrics, figures_of
 
@@ -185,23 +186,33 @@ class _Modules:
 @dataclass(frozen=True)
 class ReplayFigures(FlightFigures):
     """The flight's own figures recomputed from its log, with what only the log has in one place. Per-module
-    tuples are in module order; empty when the log has no telemetry."""
+    tuples are in module order; empty when the log has no telemetry. In a window (``--from``/``--to``) every
+    figure covers the window alone (None: the log cannot say for a window), but the flight's end (``phase``,
+    ``reason``)."""
 
-    overruns: int
-    """Late periods (the loop's own count when the log has it)."""
+    overruns: int | None
+    """Periods that ran late (their step ended after the next one's deadline), from the loop's count in each
+    period's record (None: a log whose records have no count, in a window; unwindowed, its loop summary's)."""
     loop_period_error_max_ms: float
     mocap_rate_hz: float
-    """Accepted poses per second of flight (NaN: no mocap counters logged)."""
-    mocap_rejected: int
-    mocap_malformed: int
-    mocap_missed: int
+    """Poses that arrived per second, from the first period to the last (every pose of the body's source, as
+    logged when it arrived; NaN: under two periods, or no pose logged)."""
+    mocap_rejected: int | None
+    """Poses the subscriber rejected (jumps, stale or out of order), from its counts in the periods' records
+    (None: a log whose records have no counts, in a window; unwindowed, its last ``/mocap/stats`` count, since
+    the stream started)."""
+    mocap_malformed: int | None
+    mocap_missed: int | None
     duration_s: float
     """Flight time from the first to the last period analysed, s."""
+    tracked_s: float
+    """Flight time from the first to the last tracking period analysed, s (0: none)."""
     phase: str
     """The state the flight ended in."""
     reason: str
     """Why it ended early ("" when it flew its plan)."""
     stalls: int
+    """Loop stalls among the events."""
     battery_v_first: tuple[float, ...]
     battery_v_last: tuple[float, ...]
     battery_v_min: tuple[float, ...]
@@ -211,10 +222,10 @@ class ReplayFigures(FlightFigures):
     link_loss_max: tuple[float, ...]
     """Largest lost share of commands per module."""
     estimator_rejected: int
-    """Poses the estimator's innovation gates rejected (the last count logged; 0 for logs before it)."""
+    """Poses the estimator's innovation gates rejected (0 for logs before it counted them)."""
     estimator_late: int
-    """Poses that reached the estimator too late to use (captured before the history it keeps; the last count
-    logged; 0 for logs before it)."""
+    """Poses that reached the estimator too late to use (captured before the history it keeps; 0 for logs before
+    it counted them)."""
     position_sigma_max_m: float
     """Largest position std the estimator reported (blind flight shows here), m (NaN: not logged)."""
     innovation_position_p95_mm: float
@@ -224,24 +235,71 @@ class ReplayFigures(FlightFigures):
 
 
 @dataclass
+class _Counts:
+    """Running counts that every period's record holds (so far, that period's included), over a window: their
+    values at its last period less those at the record before it (zero before the first record)."""
+
+    before: dict = field(default_factory=dict)
+    last: dict | None = None
+
+    def add(self, counts: dict, inside: bool) -> None:
+        if inside:
+            self.last = counts
+        elif self.last is None:  # a record before the window
+            self.before = counts
+
+    def result(self) -> dict | None:
+        """The counts over the window (None: no record in it had them)."""
+        return None if self.last is None else {k: v - self.before.get(k, 0) for k, v in self.last.items()}
+
+
+@dataclass
+class _Overruns:
+    """Late periods of a window from the loop's running count. A period's record holds the count before the
+    period ran, so whether the window's last period ran late shows in the next record, or (the flight's last)
+    in the loop's summary."""
+
+    first: int | None = None
+    """The count at the window's first period."""
+    last: int | None = None
+    """...at its last."""
+    after: int | None = None
+    """...at the first period after it."""
+
+    def add(self, count: int, inside: bool) -> None:
+        if inside:
+            self.first = count if self.first is None else self.first
+            self.last = count
+        elif self.last is not None and self.after is None:
+            self.after = count
+
+    def result(self, total: int | None, windowed: bool) -> int | None:
+        """``total``: the loop's own count at the end of the flight (None: not logged)."""
+        if self.first is None:  # no record had a count: only the summary's, of the whole flight
+            return None if windowed else total or 0
+        return (self.after if self.after is not None else total if total is not None else self.last) - self.first
+
+
+@dataclass
 class _Estimates:
     """The estimator's figures from the control records."""
 
-    rejected: int = 0
-    late: int = 0
+    counts: _Counts = field(default_factory=_Counts)
     sigma_max: float = -math.inf
     position: Decimated = field(default_factory=Decimated)
     attitude: Decimated = field(default_factory=Decimated)
 
-    def add(self, e: dict) -> None:
-        self.rejected, self.late = e["rejected"], e.get("late", 0)
-        self.sigma_max = max(self.sigma_max, e["position_sigma_m"])
-        self.position.add(math.hypot(*e["innovation_position_m"]) * 1e3)
-        self.attitude.add(math.hypot(*e["innovation_attitude_deg"]))
+    def add(self, e: dict, inside: bool) -> None:
+        self.counts.add({"rejected": e["rejected"], "late": e.get("late", 0)}, inside)
+        if inside:
+            self.sigma_max = max(self.sigma_max, e["position_sigma_m"])
+            self.position.add(math.hypot(*e["innovation_position_m"]) * 1e3)
+            self.attitude.add(math.hypot(*e["innovation_attitude_deg"]))
 
     def result(self) -> dict:
         p95 = lambda d: float(np.percentile(d.rows, 95)) if d.rows else math.nan  # noqa: E731
-        return {"estimator_rejected": self.rejected, "estimator_late": self.late,
+        counts = self.counts.result() or {}
+        return {"estimator_rejected": counts.get("rejected", 0), "estimator_late": counts.get("late", 0),
                 "position_sigma_max_m": self.sigma_max if self.sigma_max > -math.inf else math.nan,
                 "innovation_position_p95_mm": p95(self.position), "innovation_attitude_p95_deg": p95(self.attitude)}
 
@@ -259,9 +317,9 @@ class Replay:
     metadata: dict
     metrics: ReplayFigures
     events: list
-    """(flight time s, level, text), every event the flight logged."""
+    """(flight time s, level, text), every event the flight logged in the window."""
     timeline: list
-    """(flight time s, phase) at every change of phase."""
+    """(flight time s, phase): the phase at the window's first period, then at every change of phase in it."""
     series: Series
     rerun: RerunFigures | None
 
@@ -273,42 +331,69 @@ def _config(metadata: dict, src: str) -> dict:
         raise ConfigError("the log's config metadata is not JSON", path=src, key="config") from None
 
 
+MOCAP_COUNTS = ("rejected", "malformed", "missed")
+"""The subscriber's counters replay reports."""
+
+
 def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = None, rerun: bool = False,
             gains: Gains | None = None, allocation: str | None = None, progress=None) -> Replay:
     """Stream the flight log at ``path`` once; figures over flight time ``[t_from, t_to]`` (all if None) from
-    every intact record (damage is skipped and named in :attr:`Replay.warnings`). ``progress(fraction)`` is told
-    how much of the file has been read."""
+    every intact record (damage is skipped and named in :attr:`Replay.warnings`): the periods, events, telemetry
+    and poses in it. A log that never flew (refused before arming) replays its events and its end.
+    ``progress(fraction)`` is told how much of the file has been read."""
     log = open_log(path)
     src = str(path)
     metrics: FlightMetrics | None = None
     series = Decimated()
     modules = _Modules()
     estimates = _Estimates()
+    mocap_counts = _Counts()
+    late = _Overruns()
     events_raw: list[tuple[float, str, str]] = []
     timeline: list[tuple[float, str]] = []
+    poses = array("d")  # log time of every raw mocap pose, s
     mocap: dict = {}
     loop_summary: dict = {}
     summary: dict = {}
     offset = None
-    overruns = 0
+    t_end = None  # flight time of the log's last control record, s
+    last_phase = ""
+    flew = False
+    track_first = track_last = None
     max_start_error = 0.0
     rr: Rerun | None = None
     lo = -math.inf if t_from is None else t_from
     hi = math.inf if t_to is None else t_to
+    windowed = lo > -math.inf or hi < math.inf
     for rec in log.records(progress=progress):
         d = rec.data
         if rec.topic == "/control":
             t = d["t_s"]
             offset = rec.log_time - t if offset is None else offset
-            if not timeline or timeline[-1][1] != d["phase"]:
+            t_end, last_phase = t, d["phase"]
+            inside = lo <= t <= hi
+            if inside and (not timeline or timeline[-1][1] != d["phase"]):
                 timeline.append((t, d["phase"]))
-            if "state" not in d or not lo <= t <= hi:
-                continue  # a motors-off record (the flight's last), or outside the window
+            if "state" not in d:
+                continue  # a motors-off record (the flight's last)
+            flew = True
+            loop = d.get("loop") or {}
+            if loop:
+                late.add(loop["overruns"], inside)
+            if "estimate" in d:
+                estimates.add(d["estimate"], inside)
+            if "mocap" in d:
+                mocap_counts.add(d["mocap"], inside)
+            if not inside:
+                continue
             if metrics is None:
                 metrics = FlightMetrics(len(d["modules"]))
                 if rerun:
                     rr = Rerun(json.loads(log.metadata.get("assembly", "null")), _config(log.metadata, src),
                                gains, allocation, src)
+            if d["phase"] == Phase.TRACK:
+                track_first = t if track_first is None else track_first
+                track_last = t
             flown = d.get("truth", d["state"])
             rotation = quat_to_matrix(np.array(flown["orientation"]))
             target = quat_to_matrix(np.array(d["attitude_target"]["orientation"]))
@@ -316,48 +401,52 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             metrics.add(t, d["phase"], flown["position_m"], d["setpoint"]["position_m"], rotation, target,
                         math.radians(d["roll_target_deg"]), math.radians(d["yaw_target_deg"]), motors,
                         d.get("mocap_age_s"))
-            loop = d.get("loop") or {}
             if loop:
                 metrics.add_timing(loop["start_error_s"], loop["compute_s"])
-                overruns = max(overruns, loop["overruns"])
                 max_start_error = max(max_start_error, abs(loop["start_error_s"]))
             series.add((t, flown["position_m"], d["setpoint"]["position_m"], flown["rpy_deg"],
                         d["attitude_target"]["rpy_deg"], motors, PHASES.index(d["phase"])))
             if rr is not None:
                 rr.add(d)
-            if "estimate" in d:
-                estimates.add(d["estimate"])
         elif rec.topic == "/log":
             events_raw.append((rec.log_time, *d))
+        elif is_mocap_pose(rec.topic):
+            poses.append(rec.log_time)
         elif rec.topic == "/backend/telemetry":
-            modules.add(d)
+            if lo <= d["t_s"] <= hi:
+                modules.add(d)
         elif rec.topic == "/mocap/stats":
             mocap = d
         elif rec.topic == "/loop/timing":
             loop_summary = d
         elif rec.topic == "/flight/summary":
             summary = d
-    windowed = lo > -math.inf or hi < math.inf
-    if metrics is None and (windowed or not (summary or events_raw)):
-        raise ConfigError("the log has no control period to analyse" + (" in the window" if windowed else ""),
-                          path=src)
+    if metrics is None and flew:
+        raise ConfigError("the log has no control period to analyse in the window", path=src)
+    if metrics is None and not (summary or events_raw):
+        raise ConfigError("the log has no control period to analyse", path=src)
     if metrics is None:  # never flew (preflight refused, stopped before arming): its events and its end
         metrics = FlightMetrics(0)
         offset = events_raw[0][0] if events_raw else None
     offset = offset or 0.0
-    events = [(lt - offset, level, text) for lt, level, text in events_raw]
-    end = summary.get("phase")
-    if end and (not timeline or timeline[-1][1] != end):  # the end state is only in the summary and the events
-        timeline.append((metrics.t_last if metrics.periods else 0.0, end))
+    events = [(lt - offset, level, text) for lt, level, text in events_raw if lo <= lt - offset <= hi]
+    end, t_end = summary.get("phase"), t_end or 0.0
+    if end and lo <= t_end <= hi and (not timeline or timeline[-1][1] != end):
+        timeline.append((t_end, end))  # the end state is only in the summary and the events
     duration = (metrics.t_last - metrics.t_first) if metrics.periods > 1 else 0.0
+    arrived = np.frombuffer(poses) - offset
+    counts = mocap_counts.result()
+    if counts is None and mocap and not windowed:  # a log before the periods' counts: the stream's, since it began
+        counts = {k: mocap.get(k, 0) for k in MOCAP_COUNTS}
     m = ReplayFigures(
-        **figures_of(metrics.result()), overruns=loop_summary.get("overruns", overruns),
+        **figures_of(metrics.result()),
+        overruns=late.result(loop_summary.get("overruns"), windowed),
         loop_period_error_max_ms=max_start_error * 1e3,
-        mocap_rate_hz=mocap.get("accepted", 0) / duration if duration > 0 and mocap else math.nan,
-        mocap_rejected=mocap.get("rejected", 0), mocap_malformed=mocap.get("malformed", 0),
-        mocap_missed=mocap.get("missed", 0), duration_s=duration,
-        phase=summary.get("phase", timeline[-1][1] if timeline else ""),
-        reason=summary.get("reason", "") if summary else NO_END,
+        mocap_rate_hz=np.count_nonzero((arrived >= metrics.t_first) & (arrived <= metrics.t_last)) / duration
+        if duration > 0 and len(poses) else math.nan,
+        **{f"mocap_{k}": None if counts is None else counts[k] for k in MOCAP_COUNTS},
+        duration_s=duration, tracked_s=track_last - track_first if track_first is not None else 0.0,
+        phase=summary.get("phase", last_phase), reason=summary.get("reason", "") if summary else NO_END,
         stalls=sum("loop stalled" in text for _, _, text in events), **modules.result(), **estimates.result())
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),

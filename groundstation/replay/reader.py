@@ -33,6 +33,8 @@ class LogRecord:
     topic: str
     log_time: float
     """When it was logged, s since the epoch (the flight's one clock)."""
+    publish_time: float
+    """When its source made it, s since the epoch (a mocap pose: its stamp, the publisher's clock)."""
     data: object
     """JSON channels: the decoded dict; ``/log``: (level, text); other protobuf channels: the raw bytes."""
 
@@ -65,7 +67,7 @@ class LogFile:
             elif isinstance(rec, Message):
                 ch = channels[rec.channel_id]  # the scan hands out no message before its channel
                 if topics is None or ch.topic in topics:
-                    yield LogRecord(ch.topic, rec.log_time * 1e-9, _decode(ch, rec.data))
+                    yield LogRecord(ch.topic, rec.log_time * 1e-9, rec.publish_time * 1e-9, _decode(ch, rec.data))
         self.complete, self.warnings = scan.complete, tuple(scan.warnings())
 
 
@@ -101,6 +103,12 @@ def upgraded(topic: str, d: dict) -> dict:
     if d.get("gyro"):
         out["gyro_radps"] = d["gyro"]
     return out
+
+
+def is_mocap_pose(topic: str) -> bool:
+    """``topic`` is the channel of the raw mocap poses (``/mocap/<body>``: every pose of the body's source, logged
+    as it arrived; ``/mocap/stats`` holds the subscriber's counters)."""
+    return topic.startswith("/mocap/") and topic != "/mocap/stats"
 
 
 def commands(d: dict) -> np.ndarray:

@@ -88,6 +88,8 @@ class MocapIntegrity:
     """Samples from a publisher other than the body's source."""
     why: str = ""
     """Why the newest rejected sample was rejected."""
+    missed: int = 0
+    """Samples the source sent that never arrived (gaps in its sequence)."""
 
 
 class PhysicsPoseSource:
@@ -361,7 +363,7 @@ class Flight:
         """The pose stream's counters, the estimator's rejections included."""
         src, est = self.pose.integrity(), self.estimator
         return MocapIntegrity(src.rejected + est.rejected, src.malformed, src.foreign,
-                              est.last_rejection if est.rejected and est.last_rejection else src.why)
+                              est.last_rejection if est.rejected and est.last_rejection else src.why, src.missed)
 
     def _emergency(self, t: float, why: str) -> None:
         self.backend.emergency_stop()
@@ -596,6 +598,7 @@ class Flight:
             self.metrics.add_timing(timing["start_error_s"], timing["compute_s"])
         if self.log is not None:
             tw = self._log_time(t)
+            src = self.pose.integrity()
             self.log.pose("/state/pose", state.position, state.rotation, tw)
             # One record per period (fewer, larger messages keep the feeder's share of the GIL small); the arrays
             # are fresh each period, so no copies are needed, and the writer process converts them (rotation
@@ -612,7 +615,9 @@ class Flight:
                       "wrench": {"force_n": out.wrench[:3], "torque_nm": out.wrench[3:]},
                       "modules": [{"command_frac_umax": f} for f in fractions],
                       "command_max_frac_umax": worst, "command_min_frac_umax": fractions.min(),
-                      "mocap_age_s": age, "loop": timing}
+                      "mocap_age_s": age, "loop": timing,
+                      # the stream's counts so far in every period, so that a replayed window has its own
+                      "mocap": {"rejected": src.rejected, "malformed": src.malformed, "missed": src.missed}}
             est = self.estimator
             e = est.estimate()
             if e is not None:

@@ -181,7 +181,7 @@ class _LoggedPose:
 
     def integrity(self) -> MocapIntegrity:
         sub = self._sub
-        return MocapIntegrity(sub.rejected, sub.malformed, sub.foreign, sub.last_rejection)
+        return MocapIntegrity(sub.rejected, sub.malformed, sub.foreign, sub.last_rejection, sub.missed)
 
 
 def code_version() -> str:
@@ -459,7 +459,7 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
         if first_seen is None and sub.latest() is not None:
             first_seen = time.monotonic()
             deadline = max(deadline, first_seen + m.preflight_watch_s + 0.5)
-        world.settle(0.02)
+        world.settle(time.monotonic() - watch_start)
         time.sleep(0.005)
         _stop_if_asked(requests)
         est.predict(pose.now(), None)

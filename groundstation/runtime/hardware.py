@@ -59,8 +59,8 @@ class HardwareModules:
                  activity: LoopActivity, security: Security | None = None, mac_key=None) -> None:
         self.backend: Backend = load(backend_kind(cfg.backend.kind).opener)(cfg, assembly)
 
-    def settle(self, dt: float) -> None:
-        """Preflight wait: real time passes by itself."""
+    def settle(self, t: float) -> None:
+        """Preflight, ``t`` s after it began: real time passes by itself."""
 
     def before_period(self, on_period: Callable[[float], None] | None) -> Callable[[float], None] | None:
         return on_period

@@ -61,7 +61,8 @@ class FlightFigures:
     """99th percentile of the compute time of the period before each commanded one, ms (the log's figure)."""
     periods: int
     simulated_s: float
-    """Flight time covered by the periods (their count times the period), s."""
+    """Flight time covered by the periods, from the first one's start to the last one's end, s (a replayed window:
+    its own)."""
 
 
 @dataclass(frozen=True)
@@ -246,5 +247,5 @@ class FlightMetrics:
             loop_period_error_p99_ms=self.start_error.percentile(99) * 1e3,
             compute_p99_ms=self.compute.percentile(99) * 1e3,
             periods=self.periods,
-            simulated_s=self.t_last + self.dt if self.periods > 1 else 0.0,
+            simulated_s=self.t_last - self.t_first + self.dt if self.periods > 1 else 0.0,
         )

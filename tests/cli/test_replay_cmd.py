@@ -1,9 +1,11 @@
+import csv
 import json
 
 import pytest
 
+from groundstation.errors import PreflightError
 from groundstation.replay.analysis import Decimated
-from groundstation.runtime.fly import fly
+from groundstation.runtime.fly import Faults, fly
 from tests.peers import ROOT
 from tests.runtime.test_fly import config_with
 
@@ -27,28 +29,56 @@ def two_logs(tmp_path_factory):
 def test_json_of_one_log(cli, two_logs):
     code, out, err = cli("replay", two_logs[0], "--json")
     assert code == 0, err
-    d = json.loads(out)
+    (d,) = json.loads(out)  # a list whatever the number of logs
     assert set(d) >= REQUIRED and d["complete"] and d["phase"] == "done"
     assert any(e["text"] == "landing -> done: landed" for e in d["events"])
 
 
+def test_json_with_a_plot_is_json_alone(cli, two_logs, tmp_path):
+    png = tmp_path / "fig9.png"
+    code, out, err = cli("replay", two_logs[0], "--json", "--plot", str(png))
+    assert code == 0 and [d["log"] for d in json.loads(out)] == two_logs[:1], err
+    assert err == f"plot: {png}\n" and png.stat().st_size > 50_000
+
+
 def test_two_logs_side_by_side_with_a_plot_and_csv(cli, two_logs, tmp_path):
     png = tmp_path / "fig9.png"
-    code, out, err = cli("replay", *two_logs, "--plot", str(png), "--csv", str(tmp_path), "--rerun")
+    out_dir = tmp_path / "csv" / "of-today"  # made, parents too
+    code, out, err = cli("replay", *two_logs, "--plot", str(png), "--csv", str(out_dir), "--rerun")
     assert code == 0, err
     assert "roll0.mcap" in out and "roll-5.mcap" in out and "re-run: max rotor diff" in out
     assert png.stat().st_size > 50_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert sorted(p.name for p in tmp_path.glob("*.csv")) == ["roll-5_control.csv", "roll-5_events.csv",
-                                                              "roll0_control.csv", "roll0_events.csv"]
+    assert sorted(p.name for p in out_dir.glob("*.csv")) == [
+        f"{stem}_{part}.csv" for stem in ("roll-5", "roll0") for part in ("control", "events", "mocap")]
     code, out, _ = cli("replay", *two_logs, "--json")
     assert code == 0 and [d["log"] for d in json.loads(out)] == two_logs
+
+
+def test_a_refused_flight_replays_its_events(cli, tmp_path):
+    """A flight refused in preflight (mocap never saw the assembly) never armed: no control period, and still its
+    events, its end and its CSV, in a window too; the plot leaves it out and says so."""
+    log = tmp_path / "refused.mcap"
+    with pytest.raises(PreflightError):
+        fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7491"), log_path=log, faults=Faults(mocap_paused=True))
+    png, out_dir = tmp_path / "fig9.png", tmp_path / "csv"
+    code, out, err = cli("replay", str(log), "--from", "0", "--to", "5", "--json", "--plot", str(png),
+                         "--csv", str(out_dir))
+    assert code == 0, err
+    (d,) = json.loads(out)
+    assert d["periods"] == 0 and d["phase"] == "aborted" and d["timeline"] == [{"t": 0.0, "phase": "aborted"}]
+    assert any("preflight failed: mocap does not see" in e["text"] for e in d["events"])
+    assert "refused.mcap: not plotted: it never flew" in err and not png.exists()
+    with open(out_dir / "refused_events.csv") as fh:
+        assert [e["text"] for e in csv.DictReader(fh)] == [e["text"] for e in d["events"]]
+    code, out, err = cli("replay", str(log))
+    assert code == 0 and "preflight failed: mocap does not see" in out, err
 
 
 def test_bad_input_is_one_line_and_exit_2(cli, two_logs, tmp_path):
     for args, message in [((str(ROOT / "README.md"),), "README.md: not an MCAP file"),
                           ((str(tmp_path / "none.mcap"),), "none.mcap: file not found"),
                           ((two_logs[0], "--from", "5", "--to", "2"), "--to (2) must be after --from (5)"),
-                          ((two_logs[0], "--csv", str(tmp_path / "nodir")), "nodir: not a directory"),
+                          ((two_logs[0], "--csv", two_logs[1]), "roll-5.mcap: not a directory"),
                           ((two_logs[0], "--from", "900"), "no control period to analyse in the window")]:
         code, out, err = cli("replay", *args)
         assert code == 2 and out == "" and message in err and err.count("\n") == 1, (args, err)

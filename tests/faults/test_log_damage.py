@@ -32,7 +32,7 @@ def _replayed(cli, log: Path, want: Expected) -> list[str]:
     """``replay --json``: exit 0, every intact control period analysed, the damage said; its warning lines."""
     code, out, err = cli("replay", str(log), "--json")
     assert code == 0, err
-    figures = json.loads(out)
+    (figures,) = json.loads(out)  # a list, one object per log
     assert figures["periods"] == want.periods and not figures["complete"]
     lines = _warned(err, log.name)
     assert [f"groundstation: warning: {log.name}: {w}" for w in figures["warnings"]] == lines

@@ -94,7 +94,8 @@ def _gone(pid: int) -> bool:
 def _replayed(cli, log: Path) -> dict:
     code, out, err = cli("replay", str(log), "--json")
     assert code == 0, err
-    return json.loads(out)
+    (figures,) = json.loads(out)  # a list, one object per log
+    return figures
 
 
 # -- the log file ------------------------------------------------------------------------------------------------------

@@ -79,7 +79,7 @@ def test_the_estimators_figures_recomputed_from_the_records(sim_flight):
 def test_position_rmse_recomputed_from_the_csv(sim_flight, tmp_path):
     """An independent computation: numpy over the exported rows, not the metrics code."""
     res, log = sim_flight
-    control, events = export_csv(log, tmp_path)
+    control, _, events = export_csv(log, tmp_path)
     with open(control) as fh:
         rows = [r for r in csv.DictReader(fh) if r["phase"] == "track"]
     p = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows])
@@ -127,7 +127,7 @@ def test_window(sim_flight, tmp_path):
     _, log = sim_flight
     r = analyse(log, t_from=5.0, t_to=7.0)
     assert r.series.t.min() >= 5.0 and r.series.t.max() <= 7.0
-    control, _ = export_csv(log, tmp_path)  # every period of the flight, counted without the window code
+    control, _, _ = export_csv(log, tmp_path)  # every period of the flight, counted without the window code
     with open(control) as fh:
         inside = sum(5.0 <= float(row["t_s"]) <= 7.0 for row in csv.DictReader(fh))
     # 250 Hz: at most 501 periods in 2 s; fewer when the loop skipped late periods (a loaded machine)
@@ -166,8 +166,93 @@ def test_log_without_telemetry_channels(sim_flight, tmp_path):
     r = analyse(bare)
     for key in FIGURES:
         assert same(getattr(r.metrics, key), getattr(res.metrics, key)), key
-    assert r.metrics.battery_v_min == () and math.isnan(r.metrics.mocap_rate_hz)
+    assert r.metrics.battery_v_min == () and r.metrics.mocap_rate_hz == analyse(log).metrics.mocap_rate_hz  # the
+    # poses themselves are counted
 
+
+RATE_TOLERANCE = 0.02
+"""A simulated stream's measured rate is its configured one within 2 %: over the seconds of a window or a flight a
+regular stream's count is within one pose of rate times span (0.3 % of 3 s at 100 Hz); the preflight that once
+stepped the physics 20 ms every ~10 ms turn put the whole stream 4 % high."""
+
+
+def test_the_simulated_mocap_keeps_its_rate(sim_flight):
+    """What the dry run's virtual mocap sent, preflight included (the poses' stamps in the log), and the rate
+    replay measures are the configured rate within :data:`RATE_TOLERANCE`."""
+    _, log = sim_flight
+    with open(log, "rb") as fh:
+        stamps = np.array([m.publish_time * 1e-9 for _, _, m in make_reader(fh).iter_messages(["/mocap/assembly"])])
+    r = analyse(log)
+    configured = r.metadata["config"]["mocap"]["rate_hz"]
+    assert (len(stamps) - 1) / (stamps[-1] - stamps[0]) == pytest.approx(configured, rel=RATE_TOLERANCE)
+    assert r.metrics.mocap_rate_hz == pytest.approx(configured, rel=RATE_TOLERANCE)
+
+
+LATE_EVERY, LATE_AT = 7, 3
+REJECTED_EVERY, REJECTED_AT = 11, 5
+
+
+def _with_known_counts(log, out) -> np.ndarray:
+    """``log`` copied with counts the test knows: period k (the k-th record with a state) ran late when
+    ``k % LATE_EVERY == LATE_AT`` (a record holds the loop's count before its period ran, the loop's summary the
+    total), and a pose was rejected in it when ``k % REJECTED_EVERY == REJECTED_AT`` (a record's count includes its
+    period's). Returns the periods' flight times, s."""
+    times = []
+
+    def record(topic, d):
+        if topic == "/control" and "state" in d:
+            k = len(times)
+            times.append(d["t_s"])
+            d["loop"]["overruns"] = (k + LATE_EVERY - LATE_AT - 1) // LATE_EVERY
+            d["mocap"]["rejected"] = (k + REJECTED_EVERY - REJECTED_AT) // REJECTED_EVERY
+        elif topic == "/loop/timing":
+            d["overruns"] = (len(times) + LATE_EVERY - LATE_AT - 1) // LATE_EVERY
+        return d
+
+    copy_log(log, out, record=record)
+    return np.array(times)
+
+
+@pytest.mark.parametrize("t_from, t_to", [(1.0, 4.0), (5.5, None)])
+def test_a_window_recomputed_from_its_csv(sim_flight, tmp_path, t_from, t_to):
+    """Every figure of a window equals the same figure computed with numpy from the CSV rows of that window (not
+    the analysis code): periods, flight time and tracking time, position RMSE over the tracking periods, the mocap
+    rate from the poses that arrived, the late periods and the events; the late periods and rejected poses also
+    equal the counts planted in the log. The first window starts in the take-off and ends in the tracking; the
+    second runs from the tracking to past the end."""
+    _, log = sim_flight
+    counted = tmp_path / "counted.mcap"
+    times = _with_known_counts(log, counted)
+    r = analyse(counted, t_from, t_to)
+    control, mocap, events = export_csv(counted, tmp_path, t_from, t_to)
+    with open(control) as fh:
+        rows = list(csv.DictReader(fh))
+    t = np.array([float(row["t_s"]) for row in rows])
+    hi = math.inf if t_to is None else t_to
+    assert t_from <= t.min() and t.max() <= hi and r.metrics.periods == len(rows)
+    assert r.metrics.duration_s == pytest.approx(t[-1] - t[0], rel=1e-12)
+    track = np.array([row["phase"] == "track" for row in rows])
+    assert track.any() and r.metrics.tracked_s == pytest.approx(np.ptp(t[track]), rel=1e-12)
+    xyz = np.array([[float(row[k]) for k in ("x_m", "y_m", "z_m", "x_ref_m", "y_ref_m", "z_ref_m")] for row in rows])
+    error = np.linalg.norm(xyz[track, :3] - xyz[track, 3:], axis=1)
+    assert r.metrics.pos_rmse_m == pytest.approx(np.sqrt(np.mean(error**2)), rel=1e-9)
+    with open(mocap) as fh:
+        arrived = np.array([float(row["t_s"]) for row in csv.DictReader(fh)])
+    rate = np.count_nonzero((arrived >= t[0]) & (arrived <= t[-1])) / (t[-1] - t[0])
+    assert r.metrics.mocap_rate_hz == pytest.approx(rate, rel=1e-12)
+    assert rate == pytest.approx(r.metadata["config"]["mocap"]["rate_hz"], rel=RATE_TOLERANCE)
+    k = np.flatnonzero((times >= t_from) & (times <= hi))  # the window's periods, by their index in the flight
+    late = np.array([int(row["late"]) for row in rows])
+    assert r.metrics.overruns == late.sum() == np.count_nonzero(k % LATE_EVERY == LATE_AT) > 0
+    assert r.metrics.mocap_rejected == np.count_nonzero(k % REJECTED_EVERY == REJECTED_AT) > 0
+    with open(events) as fh:
+        logged = list(csv.DictReader(fh))
+    assert [(float(e["t_s"]), e["level"], e["text"]) for e in logged] == r.events and logged
+    assert all(t_from <= t_s <= hi for t_s, _, _ in r.events)
+    assert r.metrics.stalls == sum("loop stalled" in e["text"] for e in logged)
+    phases = [row["phase"] for row in rows]
+    changes = [p for i, p in enumerate(phases) if i == 0 or p != phases[i - 1]]
+    assert [p for _, p in r.timeline] == changes + (["done"] if t_to is None else [])  # the end: a motors-off record
 
 def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
     """Both processes killed: the file ends mid-chunk. The stream reader reads up to the cut; `log recover`

@@ -77,7 +77,8 @@ def test_cli_on_a_calm_dry_run(cli, tmp_path):
     assert fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537"), duration=3.0, log_path=log).phase == "done"
     code, out, err = cli("replay", str(log), "--gyro-lag", "--json")
     assert code == 0, err
-    d = json.loads(out)["gyro_lag"]
+    (replay,) = json.loads(out)  # a list, one object per log
+    d = replay["gyro_lag"]
     assert not d["found"] and d["configured_s"] == 0.004 and d["sharpness"] < 1.25, d
     code, out, err = cli("replay", str(log), "--gyro-lag")
     assert code == 0 and "no gyro delay found: the body turned at " in out, out

@@ -35,7 +35,7 @@ def test_64_flipped_bytes_and_the_csv_of_what_is_left(tmp_path):
     want = expected(log, offsets)
     r = analyse(bad)
     assert r.metrics.periods == want.periods > 0 and not r.complete
-    control, _ = export_csv(bad, tmp_path)
+    control, _, _ = export_csv(bad, tmp_path)
     with open(control) as fh:
         assert sum(1 for _ in csv.reader(fh)) == want.periods + 1  # a header and one row per intact period
 
