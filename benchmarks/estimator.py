@@ -58,6 +58,7 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, flo
     states = [RigidState(np.array([0.0, 0.0, 1.0]), np.zeros(3), euler_zyx(*rng.normal(0, 0.02, 3)), g)
               for g in gyros]
     module_gyros = gyros[:, None, :] + rng.normal(0, 0.01, (periods, n, 3))  # the modules' readings, in agreement
+    ages = np.full(n, 0.004)  # each reading's age, as the hardware backends report them (all fresh)
     gains = Gains()
     filter_runs, gyro_runs, both_runs, ctrl_runs = [], [], [], []
     for _ in range(repeats):
@@ -73,13 +74,14 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, flo
         agreement = GyroAgreement()
         t0 = time.perf_counter()
         for k in range(periods):
-            agreement.rate(k * dt, module_gyros[k], gyros[k])
+            agreement.rate(k * dt, module_gyros[k], gyros[k], None, ages, 0.004, 0.03)
         gyro_runs.append((time.perf_counter() - t0) / periods * 1e6)
         f, agreement = RigidBodyFilter(EstimatorSettings(gyro_delay=0.01), model.mass), GyroAgreement()
         t0 = time.perf_counter()
         for k in range(periods):
             now = k * dt
-            f.predict(now, *agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now)))
+            f.predict(now, *agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now), ages, 0.004,
+                                           0.03))
             if k % 5 in (0, 2):
                 f.correct(poses[k])
             f.state()

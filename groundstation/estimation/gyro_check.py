@@ -55,6 +55,8 @@ class GyroAgreement:
         self._excess = 0.0
         self._recent: deque[tuple[float, list[list[float]]]] = deque()
         """(t, readings) of the last ``delay_spread``."""
+        self._judged: list[int] | None = None
+        """The modules judged last (None: all): :attr:`_recent` compares readings of the same modules only."""
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
              referee: Callable[[], np.ndarray | None] | None = None, ages: np.ndarray | None = None,
@@ -62,10 +64,11 @@ class GyroAgreement:
         """The body rate to fly on at ``t`` (s) and how old it is (s): ``mean`` (the backend's, of all modules,
         ``age`` old) unless a module was left out, a reading is not a number or is stale; judges ``module_gyros``
         ((n, 3), rad/s, body frame) on the way. ``ages``: each module's reading's age, s (None or empty: all
-        ``age`` old); a reading older than ``stale_s`` is left out of the rate while fresher ones exist, and no
-        reading is judged while one is stale: a packet late by tens of ms during a turn is old news, not a loose
-        IMU. ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the wrong one of two;
-        asked only then (not on the control loop's every period)."""
+        ``age`` old; NaN: stale); a reading older than ``stale_s`` is left out of the rate while fresher ones exist,
+        and only the fresh readings are judged, against each other (two at least): a packet late by tens of ms
+        during a turn is old news, not a loose IMU, and a module taken out of the flight (its age infinite) leaves
+        the others judged. ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the
+        wrong one of two; asked only then (not on the control loop's every period)."""
         n = len(module_gyros)
         if n < 2:
             return mean, age
@@ -75,9 +78,17 @@ class GyroAgreement:
         rates = module_gyros.tolist()
         # A sum that is a number says that every reading is one (the common case, on every control period).
         finite = None if math.isfinite(sum(map(sum, rates))) else np.isfinite(module_gyros).all(axis=1)
-        fresh = None if ages is None or len(ages) != n or not max(ages.tolist()) > stale_s else ages <= stale_s
-        if not self.fault and fresh is None:
-            self._judge(t, module_gyros, rates, finite, referee)
+        fresh = None
+        if ages is not None and len(ages) == n:
+            fresh = ages <= stale_s  # NaN compares False: stale
+            fresh = None if fresh.all() else fresh
+        if not self.fault:
+            if fresh is None:
+                self._judge(t, module_gyros, rates, finite, referee, None)
+            elif fresh.sum() >= 2:
+                index = np.flatnonzero(fresh).tolist()
+                self._judge(t, module_gyros[index], [rates[i] for i in index],
+                            None if finite is None else finite[index], referee, index)
         if self.excluded is None and (finite is None or finite.all()) and fresh is None:
             return mean, age
         keep = np.isfinite(module_gyros).all(axis=1)
@@ -91,9 +102,13 @@ class GyroAgreement:
         return (mean if keep.all() else module_gyros[keep].mean(axis=0)), used_age
 
     def _judge(self, t: float, module_gyros: np.ndarray, rates: list[list[float]], finite: np.ndarray | None,
-               referee: Callable[[], np.ndarray | None] | None) -> None:
-        """``rates``: ``module_gyros`` as lists; ``finite``: which are numbers (None: all are)."""
+               referee: Callable[[], np.ndarray | None] | None, index: list[int] | None) -> None:
+        """``rates``: ``module_gyros`` as lists; ``finite``: which are numbers (None: all are); ``index``: the
+        modules these are (None: all, in order)."""
         s = self.settings
+        if index != self._judged:  # other modules than last time: their history does not compare
+            self._judged = index
+            self._recent.clear()
         dt = 0.0 if self._t is None else min(max(t - self._t, 0.0), s.max_step)
         self._t = t
         n = len(module_gyros)
@@ -130,9 +145,11 @@ class GyroAgreement:
         if poses is not None:
             i = int(np.argmax(np.sqrt(((module_gyros - poses) ** 2).sum(axis=1))))
         elif n == 2 and not broken:
-            self.fault = (f"the gyros of modules 0 and 1 disagree by {size} for {lasted} (tolerated "
+            a, b = index or (0, 1)
+            self.fault = (f"the gyros of modules {a} and {b} disagree by {size} for {lasted} (tolerated "
                           f"{math.degrees(tolerance):.0f}): a failed or loose IMU; no poses to tell which")
             return
+        i = i if index is None else index[i]
         self.excluded = i
         whose = "other's" if n == 2 else "others'"
         self.fault = (f"module {i}'s gyro disagrees with the {whose} by {size} for {lasted} (tolerated "

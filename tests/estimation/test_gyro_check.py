@@ -160,3 +160,29 @@ def test_a_module_taken_out_of_the_flight_leaves_the_body_rate():
                                stale_s=0.03)
     np.testing.assert_allclose(rate, [0.0, 0.45, 0.0])
     assert age == pytest.approx(0.006)
+
+
+def test_with_one_module_out_of_the_flight_the_others_stay_judged():
+    """Module 2 isolated (infinite age, its last reading frozen), then module 1's gyro stuck at 2000 deg/s: the
+    fault latches on module 1 (fresh modules judged against each other; it was not while any module was stale),
+    and the body rate is module 0's."""
+    agreement = GyroAgreement()
+    good = np.array([0.0, 0.3, 0.0])
+    ages = np.array([0.004, 0.004, np.inf])
+    for k in range(round(0.2 / DT)):
+        t = k * DT
+        stuck = good if t < 0.1 else np.radians([2000.0, 0.0, 0.0])
+        rates = np.array([good, stuck, [0.0, -3.0, 0.0]])
+        rate, _ = agreement.rate(t, rates, rates.mean(axis=0), lambda: good, ages, np.inf, 0.03)
+    assert agreement.excluded == 1 and agreement.fault.startswith("module 1's gyro disagrees with the other's")
+    np.testing.assert_allclose(rate, good)
+
+
+@pytest.mark.parametrize("ages", [[np.nan, 0.004], [0.004, np.nan]])
+def test_an_age_that_is_not_a_number_is_stale_wherever_it_is(ages):
+    agreement = GyroAgreement()
+    rates = np.array([[0.0, 0.5, 0.0], [0.0, 0.1, 0.0]])
+    rate, age = agreement.rate(0.0, rates, rates.mean(axis=0), ages=np.array(ages), age=np.nan, stale_s=0.03)
+    fresh = 1 if np.isnan(ages[0]) else 0
+    np.testing.assert_allclose(rate, rates[fresh])
+    assert age == pytest.approx(0.004)
