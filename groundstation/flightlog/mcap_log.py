@@ -436,6 +436,8 @@ RESEND_S = 1.0
 """The live view sends the static messages (scene, module transforms) to every client this often, besides once to
 each client that subscribes to their channel (one that missed that, or whose panel was cleared, gets them within
 this), s."""
+LIVE_STOP_S = 2.0
+"""Longest wait for the live server to stop at the end of a log, s."""
 SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.sdk.v1.1")
 """The WebSocket subprotocols the live view speaks: foxglove-sdk 0.30.3's, fixed by it (its ``websocket/handshake.rs``
 picks the newest of exactly these two names among those a client offers and answers a client that offers neither
@@ -533,8 +535,13 @@ class _Live:
                 self._channels[topic].log(payload, log_time=ns)
 
     def close(self) -> None:
+        """Stop the server, waiting at most :data:`LIVE_STOP_S`: a client that subscribed and stopped reading held
+        ``stop()`` 40-75 s (foxglove-sdk 0.30.3), and the log is finished before this is called; the writer
+        process exits after its result whatever the server's threads do (:func:`_writer_main`)."""
         if self._server is not None:
-            self._server.stop()
+            stopping = threading.Thread(target=self._server.stop, name="live-stop", daemon=True)
+            stopping.start()
+            stopping.join(LIVE_STOP_S)
 
 
 class _Writer:
@@ -676,10 +683,11 @@ class _Writer:
             self._live.close()
 
     def abandon(self) -> None:
-        """Close without the summary (it cannot be written): every complete chunk stays readable."""
+        """Close without the summary (it cannot be written): every complete chunk stays readable. The file first:
+        whatever the live server does, what was written is on disk."""
+        self._fh.close()
         if self._live is not None:
             self._live.close()
-        self._fh.close()
 
 
 def _frames(fd: int, poll_s: float):
@@ -783,3 +791,6 @@ def recover(src: str | Path, dst: str | Path) -> dict:
 
 if __name__ == "__main__":
     _writer_main()
+    # Its result printed, the process ends here: a live server's threads that will not stop (a client that stopped
+    # reading) must not keep it, and the port, for the next flight.
+    os._exit(0)
