@@ -275,3 +275,41 @@ def test_json_channels_carry_schemas_with_the_fields(live_flight):
     record = json.loads(msg.data)
     assert set(record) <= set(props)  # every field the writer wrote is described
 
+
+
+def test_a_client_that_stops_reading_does_not_hold_the_writer(tmp_path):
+    """A live client subscribes to everything and never reads again while the flight writes 4 kB records: the
+    writer finishes the file and exits with its result (before: the server's stop() blocked 40-75 s, the flight
+    reported "the log writer did not finish the file" and the port stayed taken for the next flight)."""
+    import socket
+
+    from groundstation.flightlog.mcap_log import FlightLog
+
+    path = tmp_path / "stalled.mcap"
+    port = LIVE_PORT + 7
+    log = FlightLog(path, live_port=port)
+    log.scene(ASM, 0.0)
+    log.record("/control", {"t_s": 0.0}, 0.0)  # the server starts with the first record
+    ws = None
+    deadline = time.monotonic() + 10.0
+    while ws is None and time.monotonic() < deadline:
+        try:
+            ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOLS[0]], open_timeout=2)
+        except OSError:
+            log.record("/control", {"t_s": 0.0}, 0.0)
+            time.sleep(0.1)
+    assert ws is not None, "the live server did not come up"
+    client = Client(ws, ("/scene", "/tf", "/control"))
+    while len(client.advertised) < 3 and time.monotonic() < deadline:
+        log.record("/control", {"t_s": 0.0, "pad": "x" * 4000}, 0.0)
+        client.poll(0.05)
+    for k in range(2000):  # ~8 MB nobody reads: the socket buffers fill
+        log.record("/control", {"t_s": k * 0.004, "pad": "x" * 4000}, k * 0.004)
+    log.close()
+    assert log.error is None
+    with open(path, "rb") as fh:  # finished: the summary is there
+        assert make_reader(fh).get_summary() is not None
+    with socket.socket() as s:  # the writer process is gone and nothing listens there (closed connections linger)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", port))
+    ws.close()
