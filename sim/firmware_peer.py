@@ -37,21 +37,28 @@ FIRMWARE_PHYSICS_HZ = 1000.0
 REBOOT_STATUS = 3
 READY_TIMEOUT_S = 10.0
 FIRMWARE_PRIORITY = 15
-"""SCHED_FIFO priority of the firmware processes (and every task thread of theirs), where the host permits it:
-below the world that feeds them (20), above the ground station's loop (10). On hardware each module's firmware
-has a processor of its own; behind ordinary processes on a busy host it answered tens of ms late, which the
-ground station rightly takes for a degraded link. Their idle task sleeps (``vApplicationIdleHook``), so they take
-what they use and no more."""
+"""SCHED_FIFO priority of the firmware processes (and every task thread of theirs), where the host permits it and
+they fit (:data:`FIRMWARE_CPU_SHARE`): below the world that feeds them (20), above the ground station's loop (10).
+On hardware each module's firmware has a processor of its own; behind ordinary processes on a busy host it
+answered tens of ms late, which the ground station rightly takes for a degraded link. Below the loop instead (5),
+the loop's busy periods after take-off held them back as much (round trips of 18 ms, 2026-12-02)."""
+FIRMWARE_CPU_SHARE = 0.2
+"""What one firmware process takes of a core, fed at 1 kHz (measured 13-19 %: its 1 kHz tick, the stabilizer, the
+links' 1 ms polls; its idle task sleeps in ``vApplicationIdleHook``). Real-time processes are never preempted by
+ordinary ones, so they get the priority only while all of them fit in the host's cores less one (n <= 5 on 2
+cores): more would starve everything else, the ground station's own threads included."""
 
 
 def _firmware_priority() -> None:
-    """``preexec_fn`` of a firmware process: :data:`FIRMWARE_PRIORITY` where permitted (as it was otherwise)."""
+    """``preexec_fn`` of a firmware process: :data:`FIRMWARE_PRIORITY` where permitted (as it was otherwise; the
+    parent reads back which: :attr:`FirmwareCrazyflies.realtime_firmware`). Only a system call, no lock taken: safe
+    in the child of a process with threads."""
     with contextlib.suppress(PermissionError, OSError):
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIRMWARE_PRIORITY))
 
 
 class _Process:
-    def __init__(self, binary: Path, crtp_port: int, params: Path, log: Path, uid: str) -> None:
+    def __init__(self, binary: Path, crtp_port: int, params: Path, log: Path, uid: str, realtime: bool) -> None:
         self.sensor_port = _free_port()
         self.motor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.motor.bind(("127.0.0.1", 0))
@@ -59,6 +66,8 @@ class _Process:
         self.cmd = [str(binary), "--crtp-port", str(crtp_port), "--sensor-port", str(self.sensor_port),
                     "--motor-addr", f"127.0.0.1:{self.motor.getsockname()[1]}", "--params", str(params), "--uid", uid]
         self.log = log
+        self.realtime = realtime
+        """Whether the process is started at :data:`FIRMWARE_PRIORITY`."""
         self.ratios = np.zeros(4)
         self.info = 0
         self.heard = False
@@ -72,7 +81,8 @@ class _Process:
         self.heard = False
         self.ratios = np.zeros(4)
         with open(self.log, "a") as out:
-            self.proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_firmware_priority)
+            self.proc = subprocess.Popen(self.cmd, stdout=out, stderr=subprocess.STDOUT,
+                                         preexec_fn=_firmware_priority if self.realtime else None)
         self.running = True
 
     def alive(self) -> bool:
@@ -123,6 +133,8 @@ class FirmwareCrazyflies(ModulePeer):
         """Where each module keeps its stored parameters (``m<i>.params``) and its console log (``m<i>.log``)."""
         self._tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._seq = 0
+        self.realtime_firmware = False
+        """Whether every firmware process runs at :data:`FIRMWARE_PRIORITY` (known once they are ready)."""
 
     def _open_links(self) -> None:
         if not self.binary.is_file():
@@ -134,11 +146,16 @@ class FirmwareCrazyflies(ModulePeer):
         self.state_dir.mkdir(parents=True, exist_ok=True)
         c = self.config
         self._procs = []  # filled one by one: closing stops the ones already started if a later one fails
+        fits = self.assembly.n * FIRMWARE_CPU_SHARE <= (os.cpu_count() or 1) - 1
         for i in range(self.assembly.n):
             # A unique id per module and per peer, like sim.crazyflie_peer's.
             self._procs.append(_Process(self.binary, c.port + i, self.state_dir / f"m{i}.params",
-                                        self.state_dir / f"m{i}.log", f"00370041{c.port:08x}{0x38380000 + i:08x}"))
+                                        self.state_dir / f"m{i}.log", f"00370041{c.port:08x}{0x38380000 + i:08x}",
+                                        fits))
         self._wait_ready()
+        with contextlib.suppress(OSError):  # a process that exited since: not real-time
+            self.realtime_firmware = fits and all(os.sched_getscheduler(p.proc.pid) == os.SCHED_FIFO
+                                                  for p in self._procs)
 
     def _wait_ready(self) -> None:
         """Feed level, at-rest sensors until every process sent its first motor datagram."""

@@ -12,12 +12,10 @@ from groundstation.choices import SAMPLING_SCHEMES, SYMMETRY_GROUPS
 from groundstation.cli.common import FINITE, SEED, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
-DRAW_LIMIT = 1000
-"""Most configurations one drawing holds (a sheet of 1000 is already ~32 x 32 cells)."""
 LARGEST_DRAWABLE = {"C4": 7, "D4": 8, "none": 6}
-"""Per symmetry group, the largest n whose whole level fits in :data:`DRAW_LIMIT` (C4: 401 at n = 7, 1772 at 8;
-D4: 908 and 4011; none: 364 and 1574; tests/cli/test_enumerate_cmd.py counts them): a larger ``--draw`` is
-refused before enumerating, not after minutes of it."""
+"""Per symmetry group, the largest n whose whole level fits in one drawing (``drawing.MAX_DRAWN``; C4: 401 at
+n = 7, 1772 at 8; D4: 908 and 4011; none: 364 and 1574; tests/cli/test_enumerate_cmd.py counts them): a larger
+``--draw`` is refused before enumerating, not after minutes of it."""
 
 
 @click.command("enumerate")
@@ -42,6 +40,7 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
     """Enumerate non-isomorphic configurations of 1..N modules on the square lattice."""
     from groundstation.assembly.lattice import group_matrices
     from groundstation.design.candidates import SUFFIXES, write_candidates
+    from groundstation.design.drawing import MAX_DRAWN
     from groundstation.design.enumeration import SamplingPolicy, compile_kernels, enumerate_levels
 
     group_matrices(symmetry)  # validates the name before any work
@@ -52,9 +51,9 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
     draw_path = writable_output(draw, (".png", ".svg", ".pdf")) if draw else None
     if n < 1:
         raise UsageError(f"number of modules must be at least 1, got {n}")
-    if draw_path is not None and n > LARGEST_DRAWABLE[symmetry] and (sample is None or sample > DRAW_LIMIT):
-        raise UsageError(f"--draw: level n={n} ({symmetry}) has more than {DRAW_LIMIT} configurations, too many to "
-                         f"draw; draw n <= {LARGEST_DRAWABLE[symmetry]}, or sample it (--sample {DRAW_LIMIT} or less)")
+    if draw_path is not None and n > LARGEST_DRAWABLE[symmetry] and (sample is None or sample > MAX_DRAWN):
+        raise UsageError(f"--draw: level n={n} ({symmetry}) has more than {MAX_DRAWN} configurations, too many to "
+                         f"draw; draw n <= {LARGEST_DRAWABLE[symmetry]}, or sample it (--sample {MAX_DRAWN} or less)")
 
     console = stderr_console()
     with console.status("loading the enumeration kernels (the first run on a machine compiles them, ~10 s)"):

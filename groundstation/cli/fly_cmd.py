@@ -13,7 +13,16 @@ from rich.table import Table
 
 from groundstation.backend_kinds import KINDS, load
 from groundstation.choices import MOCAP_SYSTEMS
-from groundstation.cli.common import FINITE, FiniteFloat, json_safe, sim_physics_hz, stderr_console, writable_output
+from groundstation.cli.common import (
+    FINITE,
+    STATUS_S,
+    FiniteFloat,
+    json_safe,
+    sim_physics_hz,
+    status_text,
+    stderr_console,
+    writable_output,
+)
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
@@ -25,26 +34,7 @@ EXIT_DEGRADED = 3
 """The flight landed as planned (or as the operator asked) but degraded beyond its bounds
 (:class:`~groundstation.runtime.flight.QualityBounds`: attitude error, rotor saturation, late periods); the summary
 names what. Bad input is 2 (:mod:`groundstation.cli`)."""
-STATUS_S = 0.2
-"""Status line refresh interval, s."""
-
-
 KEYS_HINT = "   l/Ctrl-C: land, k/Ctrl-C x2: stop motors"
-
-
-def status_text(s, width: int) -> str:
-    """The status line (rich markup) for a terminal ``width`` columns wide: the key hint only if it fits."""
-    battery = f"  battery {s.battery_v:4.2f} V" if s.battery_v is not None else ""
-    rate = f"{s.rate_hz:3.0f} Hz" if s.rate_hz is not None else "--- Hz"
-    m = s.mocap
-    bad = f" rej {m.rejected}" if m.rejected else ""
-    bad += f" bad {m.malformed}" if m.malformed else ""
-    bad += f" FOREIGN {m.foreign}" if m.foreign else ""
-    text = (f"{s.phase:>9} t={s.t:6.1f} s  {rate}  mocap {s.mocap_age * 1e3:4.1f} ms{bad}  motor "
-            f"{s.worst_motor:4.0%}{battery}  late {s.overruns}")
-    if len(text) + len(KEYS_HINT) <= width:
-        text += KEYS_HINT
-    return f"[bold]{text[:9]}[/]{text[9:width]}"
 
 
 @click.command("fly")
@@ -85,7 +75,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
             if s is None or s is shown or not activity.may_work(1e-3):  # a render takes ~0.5 ms
                 continue
             shown = s
-            live.update(status_text(s, console.width), refresh=True)
+            live.update(status_text(s, console.width, KEYS_HINT), refresh=True)
             done.wait(STATUS_S)
 
     from groundstation.runtime.keys import KeyReader
@@ -267,7 +257,7 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
         if protocol != "crtp" or stock_firmware or param_file:
             raise UsageError("--firmware runs Crazyflie firmware (--protocol crtp), with the motor app and the "
                              "parameters it stores itself (set them with 'groundstation params --apply')")
-        from sim.firmware_peer import FIRMWARE_PHYSICS_HZ, FirmwareCrazyflies
+        from sim.firmware_peer import FIRMWARE_PHYSICS_HZ, FIRMWARE_PRIORITY, FirmwareCrazyflies
 
         peer_class, extra = FirmwareCrazyflies, {"binary": firmware_binary, "state_dir": state_dir}
         physics_hz = physics_hz or FIRMWARE_PHYSICS_HZ
@@ -283,6 +273,10 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: peer.stop_event.set())
     links = ", ".join(f"{scheme}{peer.config.host}:{port + i}" for i in range(asm.n))
+    if firmware_binary:
+        click.echo("firmware processes: " + (f"SCHED_FIFO {FIRMWARE_PRIORITY}" if peer.realtime_firmware else
+                                             "normal priority (SCHED_FIFO not permitted here, or too many modules "
+                                             "for the cores: their answers can come late on a busy host)"), err=True)
     click.echo(f"simulating {asm.n} modules ({protocol}) on {links}; pose on {endpoint}", err=True)
     try:
         peer.run_as_world(duration)

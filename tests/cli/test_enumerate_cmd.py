@@ -115,11 +115,12 @@ def test_ctrl_c_during_a_level_stops_at_once(tmp_path):
 
 @pytest.mark.parametrize("symmetry", ["C4", "D4", "none"])
 def test_the_largest_drawable_level_is_the_last_within_the_draw_limit(symmetry):
-    from groundstation.cli.enumerate_cmd import DRAW_LIMIT, LARGEST_DRAWABLE
+    from groundstation.cli.enumerate_cmd import LARGEST_DRAWABLE
+    from groundstation.design.drawing import MAX_DRAWN
     from groundstation.design.enumeration import enumerate_levels
 
     counts = [lv.non_isomorphic for lv in enumerate_levels(LARGEST_DRAWABLE[symmetry] + 1, symmetry)]
-    assert counts[-2] <= DRAW_LIMIT < counts[-1]
+    assert counts[-2] <= MAX_DRAWN < counts[-1]
 
 
 def test_a_level_too_large_to_draw_is_refused_before_enumerating(cli, tmp_path):

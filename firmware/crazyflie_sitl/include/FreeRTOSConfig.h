@@ -14,7 +14,7 @@
 #define configCHECK_FOR_STACK_OVERFLOW 0
 #undef configUSE_MALLOC_FAILED_HOOK
 #define configUSE_MALLOC_FAILED_HOOK 0
-/* The idle hook (sitl_system.c) sleeps instead of spinning a host core. */
+/* The idle hook (sitl_main.c) sleeps instead of spinning a host core. */
 #undef configUSE_IDLE_HOOK
 #define configUSE_IDLE_HOOK 1
 /* The Cortex-M port's handler names: nothing of the kind on the POSIX port. */
