@@ -22,9 +22,10 @@ class BackendKind:
     section: str
     """``module:class`` of the kind's ``[backend]`` config section."""
     world: str
-    """``module:class`` of what a flight flies in: a context manager built from ``(cfg, assembly, theirs, faults,
-    activity, security)`` with ``backend``, ``settle(dt)``, ``before_period(on_period)``, ``truth`` and
-    ``param_issues(base, src, cache_dir)`` (see :class:`groundstation.runtime.hardware.HardwareModules`)."""
+    """``module:class`` of what a flight flies in: a context manager built from ``(assembly, cfg, key, listen,
+    faults, activity, security, mac_key)`` with ``backend``, ``settle(t)`` (preflight, ``t`` s after it began: a
+    simulated world follows that clock), ``before_period(on_period)`` and ``truth`` (see
+    :class:`groundstation.runtime.hardware.HardwareModules`)."""
     opener: str | None = None
     """Hardware kinds: ``module:function`` making the backend from ``(cfg, assembly)``."""
     links: re.Pattern[str] | None = None

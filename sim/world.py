@@ -16,6 +16,7 @@ from groundstation.control.state import RigidState
 from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, Security, open_session
+from sim.module_peer import MAX_LAG_S
 from sim.pybullet_backend import PyBulletBackend, SimConfig
 from sim.virtual_mocap import VirtualMocap
 
@@ -32,6 +33,10 @@ class SimulatedWorld:
                  activity: LoopActivity, security: Security | None = None, mac_key: MocapKey | None = None) -> None:
         m = cfg.mocap
         self.faults = faults
+        self._paused_s = 0.0
+        """Preflight time the world stood still while the process stalled, s (its schedule is that much later)."""
+        self.pauses = 0
+        """Times the physics fell more than ``MAX_LAG_S`` behind the preflight's clock and the world paused."""
         self._stack = ExitStack()
         connect = [] if listen else [m.endpoint]
         session = open_session(listen=listen, connect=connect, security=security)
@@ -64,8 +69,15 @@ class SimulatedWorld:
     def settle(self, t: float) -> None:
         """Preflight: ``t`` s have passed since it began; the physics (from 0) catches up, and the assembly settles
         on the ground. Kept on the wall clock so that the virtual mocap's poses come at its rate: 0.02 s of
-        physics for every ~10 ms turn of the preflight's watch sent a 100 Hz stream at 215 Hz."""
-        self.backend.advance_to(t)
+        physics for every ~10 ms turn of the preflight's watch sent a 100 Hz stream at 215 Hz. A call catches up
+        ``MAX_LAG_S`` at most and the rest of the way the world pauses (as a module peer's does): every pose of
+        a catch-up is stamped at the call, and a 1.5 s stall caught up at once sent 65 poses with nearly one
+        stamp, 5 of them rejected."""
+        behind = t - self._paused_s - self.backend.time
+        if behind > MAX_LAG_S:
+            self._paused_s += behind - MAX_LAG_S
+            self.pauses += 1
+        self.backend.advance_to(t - self._paused_s)
 
     def before_period(self, on_period: Callable[[float], None] | None) -> Callable[[float], None]:
         """What runs at the start of every period: the faults applied, the caller's hook, physics to time ``t``."""

@@ -9,7 +9,9 @@ them and the file is refused, naming the key, when a stored value disagrees: the
 mass, the inertia, the controllable degrees of freedom and, for a designed assembly, the full verification of its
 inputs against its wrenches (:mod:`groundstation.assembly.verification`), its ``feasible`` flag, its cost and its
 verification figures. A file that says ``n = 3`` or ``mass_kg = 4.8`` over a two-module geometry, or
-``feasible`` over inputs that miss their wrenches, does not fly as something else without a word.
+``feasible`` over inputs that miss their wrenches, does not fly as something else without a word. A flight log's
+record is history: replay rebuilds what flew from its geometry alone (:func:`flown_assembly`), whatever today's
+rules say of its design.
 """
 
 from __future__ import annotations
@@ -110,10 +112,11 @@ def assembly_from_record(record, src: str) -> Assembly:
     return checked_record(record, src)[0]
 
 
-def checked_record(record, src: str) -> tuple[Assembly, CheckedDesign | None]:
-    """Validate an assembly record and re-verify its design part; returns the assembly and, for a designed
-    assembly, its design as recomputed. A stored value that disagrees with the derived one is a ConfigError
-    naming ``src`` and the key."""
+def flown_assembly(record, src: str) -> Assembly:
+    """The assembly of a record without the verdict on its design: a flight log's, which is history (what flew,
+    accepted by the rules of its day: the Fig. 1 design shipped before 2026-12-02 sat 2e-9 m inside ``2 r``, and
+    its logs replay). The geometry is validated as on load (a malformed record is refused naming ``src`` and the
+    key); the design part, if any, is not read."""
     if not isinstance(record, dict) or record.get("format") != FORMAT:
         raise ConfigError(f"expected format {FORMAT!r}", path=src, key="format")
     for key in GEOMETRY_KEYS:
@@ -121,6 +124,14 @@ def checked_record(record, src: str) -> tuple[Assembly, CheckedDesign | None]:
             raise ConfigError("missing", path=src, key=key)
     assembly = _geometry(record, src)
     _check_derived(record, assembly, src)
+    return assembly
+
+
+def checked_record(record, src: str) -> tuple[Assembly, CheckedDesign | None]:
+    """Validate an assembly record and re-verify its design part; returns the assembly and, for a designed
+    assembly, its design as recomputed. A stored value that disagrees with the derived one is a ConfigError
+    naming ``src`` and the key."""
+    assembly = flown_assembly(record, src)
     if not any(key in record for key in DESIGN_KEYS):
         return assembly, None
     for key in DESIGN_KEYS:

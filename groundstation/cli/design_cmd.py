@@ -36,12 +36,16 @@ EXIT_INFEASIBLE = 1
 @click.option("--results", default=None, metavar="FILE.jsonl",
               help="Results of every candidate, appended as they finish; rerun with it to resume.")
 @click.option("--table", default=None, metavar="FILE.csv|FILE.json", help="Write the results table.")
-@click.option("--figures", default=None, metavar="DIR", help="Write Fig. 1, 5 and 6 style figures here.")
+@click.option("--least-u-max", "least", is_flag=True,
+              help="Also find each candidate's least input bound u_max at which it is feasible (or that none is): "
+                   "a column of the table and, with --figures, the cost against u_max; about doubles the time.")
+@click.option("--figures", default=None, metavar="DIR",
+              help="Write Fig. 1, 5 and 6 style figures here (with --least-u-max, the cost against u_max too).")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the best design as an assembly file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the best design as one JSON object.")
 def design_command(tasks: str, max_modules: int, min_modules: int, modules: str | None, candidates: str | None,
                    sample: int | None, sigma: float, scheme: str, seed: int, no_modification: bool, workers: int,
-                   scheduler: str | None, results: str | None, table: str | None, figures: str | None,
+                   scheduler: str | None, results: str | None, table: str | None, least: bool, figures: str | None,
                    out: str | None, as_json: bool) -> int:
     """Find the least-cost feasible configuration with the fewest modules for a task's wrench set."""
     from groundstation.assembly.assembly_file import save_assembly
@@ -87,7 +91,7 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
         try:
             sel = select(task, params, max_modules, sampling=sampling, candidates=cand, opts=SolverOptions(),
                          workers=workers, scheduler=scheduler, results_path=results_path, on_level=on_level,
-                         on_result=on_result, min_modules=min_modules)
+                         on_result=on_result, min_modules=min_modules, least=least)
         except KeyboardInterrupt:
             progress.stop()
             if results_path is not None:
@@ -116,39 +120,68 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     if out_path is not None:
         save_assembly(out_path, sel.best.record)
     if fig_dir is not None:
-        from groundstation.design.figures import plot_assembly, plot_costs, plot_polytope
+        from groundstation.design.figures import plot_assembly, plot_cost_against_bound, plot_costs, plot_polytope
+        from groundstation.design.selection import bound_grid, cost_against_bound
 
         plot_assembly(sel.best.assembly, fig_dir / "fig1_assembly.png")
         plot_costs(rows, sel.n, fig_dir / "fig5_costs.png")
         plot_polytope(sel.best.assembly, sel.best.wrenches[:, :3], fig_dir / "fig6_polytope.png")
+    if fig_dir is not None and least:
+        level = [r for r in sel.results if r.n == sel.n]
+        grid = bound_grid(level, params.u_max)
+        with progress_bar(console) as progress:
+            bar = progress.add_task("cost against u_max", total=None)
+            curves = cost_against_bound(task, params, level, grid, SolverOptions(),
+                                        on_solve=lambda done, total: progress.update(bar, completed=done, total=total))
+        plot_cost_against_bound(curves, params.u_max, sel.n, fig_dir / "fig5_cost_vs_u_max.png")
     if as_json:
         click.echo(json.dumps(sel.best.record))
     else:
-        _print_ranking(sel, task.name, rows)
+        _print_ranking(sel, task.name, rows, params.u_max, least)
     for label, path in (("assembly", out_path), ("table", table_path), ("figures", fig_dir)):
         if path is not None:
             click.echo(f"{label}: {path}", err=True)
     return 0
 
 
-def _print_ranking(sel, task_name: str, rows: list[dict]) -> None:
-    """The feasible candidates of the chosen n (best first) with their start statistics, then the runner-up gap."""
+def _least_bound(row: dict, nominal: float) -> str:
+    """A row's least input bound and its distance to the nominal one, or why there is none."""
+    if row["never_feasible"]:
+        return "never"
+    if row["least_u_max"] == float("inf"):
+        return "none found"
+    return f"{row['least_u_max']:.5g} ({100 * (row['least_u_max'] / nominal - 1):+.2f}%)"
+
+
+def _print_ranking(sel, task_name: str, rows: list[dict], nominal: float, least: bool) -> None:
+    """The feasible candidates of the chosen n (best first) with their start statistics and (``least``) least input
+    bound, then the infeasible ones with why (and the bound they would need), then the runner-up gap."""
     level = [r for r in rows if r["n"] == sel.n]
     t = Table(title=f"{task_name}: {len(sel.ranking)} of {len(level)} candidates with n = {sel.n} feasible")
     # starts: run (feasible); optima: distinct local optima reached; hits: starts reaching the best; spread: gap
-    # to the topology's second local optimum.
-    for col in ("code", "cost", "vs best", "starts", "optima", "hits", "spread", "s"):
+    # to the topology's second local optimum; least u_max: the least input bound at which it is feasible (and
+    # against the nominal one); s: wall time of both searches.
+    columns = ("code", "cost", "vs best", "starts", "optima", "hits", "spread") + (("least u_max",) if least else ())
+    for col in (*columns, "s"):
         t.add_column(col, justify="right", no_wrap=True)
     best_cost = sel.ranking[0].cost
+    by_code = {r["code"]: r for r in level}
     for r in sel.ranking[:10]:
-        t.add_row(r.code, f"{r.cost:.5g}", f"{100 * (r.cost / best_cost - 1):+.2f}%",
-                  f"{r.starts} ({r.feasible_starts})", str(r.optima), str(r.best_hits),
-                  "-" if r.spread is None else f"{100 * r.spread:.2f}%", f"{r.wall_s:.1f}")
-    Console().print(t)
+        cells = [r.code, f"{r.cost:.5g}", f"{100 * (r.cost / best_cost - 1):+.2f}%",
+                 f"{r.starts} ({r.feasible_starts})", str(r.optima), str(r.best_hits),
+                 "-" if r.spread is None else f"{100 * r.spread:.2f}%"]
+        t.add_row(*cells, *([_least_bound(by_code[r.code], nominal)] if least else []),
+                  f"{r.wall_s + r.least_u_max_s:.1f}")
+    Console(width=140).print(t)  # wider than a pipe's default 80 columns: the table is about 100
     for r in level:
         if not r["feasible"]:
             why = r["certificate"] or (f"no start met the wrenches (least residual {r['max_wrench_residual']:.3g}, "
                                        f"{r['starts']} starts)")
+            if least:
+                needs = _least_bound(r, nominal)
+                why += "; " + {"never": "no u_max makes it feasible",
+                               "none found": "no start of the least-u_max search met the wrenches either"}.get(
+                    needs, f"feasible from u_max = {needs}")
             click.echo(f"  {r['code']}: infeasible: {why}")
     runner = sel.runner_up
     if runner is not None:

@@ -11,44 +11,23 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from groundstation.cli.common import FINITE, json_safe, progress_bar, stderr_console, writable_output
+from groundstation.cli.common import FINITE, LABELS, cell, json_safe, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
 
-ROWS = (("phase", "end"), ("reason", "why"), ("duration_s", "flight time analysed (s)"),
-        ("tracked_s", "tracking time (s)"), ("pos_rmse_m", "position RMSE, tracking (m)"),
-        ("max_pos_error_m", "max position error, tracking (m)"),
-        ("max_orientation_error_deg", "max attitude error, airborne (deg)"),
-        ("orientation_error_p95_deg", "attitude error p95, airborne (deg)"),
-        ("max_roll_error_deg", "max roll error, airborne (deg)"),
-        ("max_yaw_error_deg", "max yaw error, airborne (deg)"),
-        ("max_motor_fraction", "max rotor (u/u_max)"), ("saturation_fraction", "saturated (airborne, per module)"),
-        ("motor_change_rms", "rotor change per period RMS, tracking (u/u_max)"),
-        ("loop_period_error_p99_ms", "loop start error p99 (ms)"), ("overruns", "late periods"),
-        ("stalls", "loop stalls"),
-        ("mocap_rate_hz", "mocap rate, poses arrived (Hz)"), ("mocap_age_p99_ms", "mocap age p99 (ms)"),
-        ("mocap_rejected", "mocap rejected"), ("mocap_malformed", "mocap malformed"),
-        ("estimator_rejected", "poses the estimator rejected"),
-        ("estimator_late", "poses too late for the estimator"), ("position_sigma_max_m", "position std max (m)"),
-        ("innovation_position_p95_mm", "innovation p95 (mm)"), ("innovation_attitude_p95_deg", "innovation p95 (deg)"),
-        ("battery_v_min", "battery min (V)"), ("link_latency_ms_max", "link round trip max (ms)"),
-        ("link_loss_max", "link loss max"))
-"""(figure, label) of the table's rows; a figure over part of the flight says which (tracking: the tracking
-phase; airborne: settle, tracking and hold), the others cover every period analysed."""
-
-
-def _cell(v) -> str:
-    if isinstance(v, float):
-        return "-" if math.isnan(v) else f"{v:.4g}"
-    if isinstance(v, tuple):
-        return ", ".join(_cell(x) for x in v) or "-"
-    return str(v) if v not in (None, "") else "-"
+ROWS = ("phase", "reason", "duration_s", "tracked_s", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
+        "orientation_error_p95_deg", "max_roll_error_deg", "max_yaw_error_deg", "max_motor_fraction",
+        "saturation_fraction", "motor_change_rms", "loop_period_error_p99_ms", "overruns", "stalls", "mocap_rate_hz",
+        "mocap_age_p99_ms", "mocap_rejected", "mocap_malformed", "estimator_rejected", "estimator_late",
+        "position_sigma_max_m", "innovation_position_p95_mm", "innovation_attitude_p95_deg", "battery_v_min",
+        "link_latency_ms_max", "link_loss_max")
+"""The figures of the table, in its order (labelled by :data:`~groundstation.cli.common.LABELS`)."""
 
 
 @click.command("replay")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON: a list of one object per log, in "
               "the order given (whatever their number).")
-@click.option("--plot", default=None, metavar="FILE.png", help="Write the Fig. 9-style figure, logs overlaid.")
+@click.option("--plot", default=None, metavar="FILE.png", help="Write the Fig. 9-style figure, the logs side by side.")
 @click.option("--csv", "csv_dir", default=None, metavar="DIR", help="Write each log's periods, mocap poses and "
               "events (in the window) as CSV into DIR (made if missing).")
 @click.option("--from", "t_from", type=FINITE, default=None, help="Start of the window, flight time s.")
@@ -133,11 +112,11 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
     table.add_column("")
     for r in replays:
         table.add_column(r.path.name + ("" if r.complete else " (damaged)" if r.warnings else " (cut short)"))
-    for key, label in ROWS:
-        table.add_row(label, *(_cell(getattr(r.metrics, key)) for r in replays))
+    for key in ROWS:
+        table.add_row(LABELS[key], *(cell(getattr(r.metrics, key)) for r in replays))
     if any(r.rerun is not None for r in replays):
         table.add_row("re-run: max rotor diff (u/u_max)",
-                      *("-" if r.rerun is None else _cell(r.rerun.max_motor_diff) for r in replays))
+                      *("-" if r.rerun is None else cell(r.rerun.max_motor_diff) for r in replays))
     out = Console(width=160)
     out.print(table)
     for path, lag in lags.items():

@@ -3,17 +3,35 @@
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import asdict
 from pathlib import Path
 
 import click
 from rich.console import Console
+from rich.live import Live
 from rich.table import Table
 
-from groundstation.cli.common import FINITE, json_safe, sim_physics_hz, writable_output
+from groundstation.cli.common import (
+    FINITE,
+    LABELS,
+    STATUS_S,
+    cell,
+    json_safe,
+    sim_physics_hz,
+    status_text,
+    stderr_console,
+    writable_output,
+)
 from groundstation.errors import ConfigError, UsageError
 
 EXIT_CRASHED = 1
+ROWS = ("phase", "reason", "simulated_s", "pos_rmse_m", "pos_rmse_xyz_m", "max_pos_error_m", "max_pos_error_xyz_m",
+        "max_orientation_error_deg", "orientation_error_p95_deg", "max_roll_error_deg", "max_yaw_error_deg",
+        "max_motor_fraction", "saturation_fraction", "motor_change_rms", "mocap_age_p99_ms", "stalls", "periods",
+        "realtime_factor")
+"""The figures of the table, in its order, labelled as ``replay`` labels them (:data:`~groundstation.cli.common
+.LABELS`); the loop's timing is left out (in lockstep it is the simulator's, not a loop's: ``--json`` has it)."""
 
 OPTIONS = {"trajectory.kind": "--trajectory", "trajectory.duration": "--duration", "trajectory.height": "--height",
            "trajectory.size": "--size", "trajectory.period": "--period", "trajectory.roll_deg": "--roll",
@@ -39,7 +57,8 @@ EXACT = {"position_noise": 0.0, "attitude_noise_deg": 0.0, "latency_s": 0.0}
 @click.option("--noise", is_flag=True, help="Add mocap-like noise (1 mm, 0.2 deg) and 5 ms latency.")
 @click.option("--realtime", is_flag=True, help="Pace to the wall clock instead of lockstep.")
 @click.option("--gui", is_flag=True, help="Open PyBullet's GUI (needs a display).")
-@click.option("--plot", default=None, metavar="FILE.png", help="Write a plot of the flight.")
+@click.option("--plot", default=None, metavar="FILE.png", help="Write the flight's figure (as replay --plot draws a "
+              "log).")
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as one JSON object.")
 def simulate_command(assembly: str, trajectory: str, duration: float, height: float, size: float, period: float,
                      roll: float, control_hz: float, physics_hz: float, allocation: str, noise: bool,
@@ -65,30 +84,67 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
                     gui=gui, mocap_rate_hz=m.rate_hz,
                     position_noise=m.position_noise, attitude_noise=np.radians(m.attitude_noise_deg),
                     latency=m.latency_s)
-    with PyBulletBackend(asm, sim) as backend:
-        plan = FlightPlan(ground=tuple(backend.start_position), track=track)
-        rec = fly_simulated(asm, plan, backend, Gains(**asdict(cfg.gains)), cfg.rate_hz, cfg.allocation,
-                            FlightVolume(), estimator=estimator_settings(cfg))
+    started = time.time()
+    console = stderr_console()
+    # On a terminal, a status line as fly's (none in the GUI, whose window shows the flight).
+    live = Live(console=console, auto_refresh=False, transient=True) if console.is_terminal and not gui else None
+    shown = [0.0]
+
+    def on_status(s) -> None:  # on the loop's thread, at most every STATUS_S of wall time (a render: ~0.5 ms)
+        now = time.monotonic()
+        if now - shown[0] >= STATUS_S:
+            shown[0] = now
+            live.update(status_text(s, console.width), refresh=True)
+
+    if live is not None:
+        live.start()
+        live.update("[bold]preflight[/]", refresh=True)
+    try:
+        with PyBulletBackend(asm, sim) as backend:
+            plan = FlightPlan(ground=tuple(backend.start_position), track=track)
+            rec = fly_simulated(asm, plan, backend, Gains(**asdict(cfg.gains)), cfg.rate_hz, cfg.allocation,
+                                FlightVolume(), estimator=estimator_settings(cfg),
+                                on_status=on_status if live is not None else None)
+    finally:
+        if live is not None:
+            live.stop()  # transient: the status line goes, and what follows starts on a line of its own
     metrics = asdict(rec.metrics) | dict(assembly=assembly, trajectory=trajectory, n=asm.n,
                    controllable_dof=asm.controllable_dof, crash_reason=rec.crash_reason)
     if plot_path is not None:
-        from groundstation.runtime.plots import plot_flight
-
-        plot_flight(rec, plot_path, f"{trajectory}, n = {asm.n}, roll target {roll:g} deg", asm.params.u_max)
+        _plot(rec, asm, plot_path, assembly, started, f"{trajectory}, roll target {roll:g} deg",
+              f"simulate (PyBullet {cfg.backend.physics_hz:g} Hz, {'noisy' if noise else 'exact'} mocap)")
         metrics["plot"] = str(plot_path)
     if as_json:
         click.echo(json.dumps(json_safe(metrics)))
     else:
-        table = Table(title=f"Simulated {trajectory}: {assembly}", show_header=False)
-        for k, v in metrics.items():
-            table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
-        Console().print(table)
+        figures = metrics | {"phase": "emergency" if rec.crashed else "done", "reason": rec.crash_reason}
+        table = Table(title=f"Simulated {trajectory}: {assembly} (n = {asm.n}, {asm.controllable_dof} DOF)",
+                      show_header=False)
+        for key in ROWS:
+            table.add_row(LABELS[key], cell(figures[key]))
+        out = Console()
+        if not out.is_terminal:  # piped: the labels whole (a terminal's width is kept: a wider table would wrap)
+            out = Console(width=160)
+        out.print(table)
     if plot_path is not None:
         click.echo(f"plot: {plot_path}", err=True)
     if rec.crashed:
         click.echo(f"groundstation: the flight failed: {rec.crash_reason}", err=True)
         return EXIT_CRASHED
     return 0
+
+
+def _plot(rec, asm, path: Path, assembly: str, started: float, label: str, config: str) -> None:
+    """The flight figure of ``rec`` (:mod:`groundstation.runtime.plots`, as ``replay --plot`` draws a log)."""
+    from groundstation.control.geometric import free_angles
+    from groundstation.control.model import ControlModel
+    from groundstation.runtime.fly import code_version
+    from groundstation.runtime.plots import assembly_fact, date_fact, save_flight_figure, trace_of_record
+
+    facts = (assembly_fact(Path(assembly).stem, asm.n, asm.controllable_dof), ("config", config),
+             date_fact(started), ("code", f"code {code_version()}"))
+    save_flight_figure([trace_of_record(rec, label, facts, free_angles(ControlModel.from_assembly(asm)),
+                                        asm.params.u_max)], path)
 
 
 def _checked(assembly: str, options: dict):

@@ -77,6 +77,21 @@ def _solve_angle(a: float, b: float, c: float) -> float:
     return float(min(cands, key=abs))
 
 
+def _frees_pitch(n: np.ndarray) -> bool:
+    """A missing body force direction ``n`` closer to the body x axis than to y frees pitch (else roll)."""
+    return abs(n[0]) >= abs(n[1])
+
+
+def free_angles(model: ControlModel) -> tuple[str, ...]:
+    """The ZYX angles ("roll", "pitch") that :func:`adapt_attitude` sets from the force instead of taking them from
+    the target: the ones the assembly does not track (none when fully actuated)."""
+    if model.actuation == "force-deficient-1":
+        return ("pitch",) if _frees_pitch(model.null_force[0]) else ("roll",)
+    if model.actuation == "force-deficient-2":
+        return ("roll", "pitch")
+    return ()
+
+
 def adapt_attitude(target: np.ndarray, force_world: np.ndarray, model: ControlModel) -> np.ndarray:
     """Desired attitude for an under-actuated assembly (see module docstring); ``target`` when fully actuated."""
     if model.actuation == "force-deficient-1":
@@ -84,7 +99,7 @@ def adapt_attitude(target: np.ndarray, force_world: np.ndarray, model: ControlMo
         roll, pitch, yaw = roll_pitch_yaw(target)
         rz = euler_zyx(0.0, 0.0, yaw)
         f = rz.T @ force_world
-        if abs(n[0]) >= abs(n[1]):  # free pitch, hold roll: (R_y(theta) R_x(roll) n) . f = 0
+        if _frees_pitch(n):  # free pitch, hold roll: (R_y(theta) R_x(roll) n) . f = 0
             m = euler_zyx(roll, 0.0, 0.0) @ n
             a = m[0] * f[0] + m[2] * f[2]
             b = m[2] * f[0] - m[0] * f[2]

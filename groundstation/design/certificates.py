@@ -52,6 +52,13 @@ def infeasibility_certificate(topo: Topology, params: ModuleParams, wrenches: np
     if need[k] > capacity * (1 + 1e-12):
         return Certificate("thrust-capacity", f"wrench {k + 1} needs a force of {need[k]:.4g} N, more than the "
                                               f"{topo.n} modules' total thrust 4 n c_f u_max = {capacity:.4g} N")
+    return force_span_certificate(topo, wrenches)
+
+
+def force_span_certificate(topo: Topology, wrenches: np.ndarray) -> Certificate | None:
+    """The thrust-axis span proof alone, or None. It does not involve ``u_max``: a topology it rules out is
+    infeasible whatever the input bound."""
+    forces = np.atleast_2d(np.asarray(wrenches, dtype=float))[:, :3]
     dim = thrust_axis_dimension(topo)
     sv = np.linalg.svd(forces, compute_uv=False)
     rank = int(np.sum(sv > RANK_TOLERANCE * sv[0])) if sv[0] > 0 else 0

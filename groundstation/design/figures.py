@@ -1,5 +1,6 @@
 """Design figures: the assembly with its downwash capsules (paper Fig. 1), costs of the feasible candidates
-(Fig. 5) and the force polytope at zero torque with the task forces (Fig. 6)."""
+(Fig. 5), the cost of every candidate against the input bound ``u_max`` (why Fig. 5 shows the candidates it
+shows) and the force polytope at zero torque with the task forces (Fig. 6)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 from scipy.optimize import linprog
 
 from groundstation.assembly.assembly import Assembly
+from groundstation.design.selection import CostCurve
 from groundstation.output import save_figure
 
 
@@ -69,6 +71,29 @@ def plot_costs(rows: list[dict], n: int, path: str | Path) -> Path:
     ax.set_xticks(range(len(feas)), [r["code"] for r in feas], rotation=60, fontsize=7, ha="right")
     ax.set_ylabel("J_cost ((rad/s)^4)")
     ax.set_title(f"Feasible configurations with {n} modules ({len(feas)} of {sum(r['n'] == n for r in rows)})")
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=110)
+
+
+def plot_cost_against_bound(curves: list[CostCurve], nominal: float, n: int, path: str | Path) -> Path:
+    """Least cost found against the input bound ``u_max``, one line per candidate from its least bound (a large
+    dot), the nominal bound dotted; candidates no bound makes feasible are named in the legend."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9.5, 4.5))
+    scale = 1e6
+    for c in sorted(curves, key=lambda c: c.least_u_max):
+        if not c.u_max:
+            ax.plot([], [], " ", label=f"{c.code}: {'never feasible' if c.never_feasible else 'none found'}")
+            continue
+        (line,) = ax.plot(np.divide(c.u_max, scale), c.cost, marker=".", lw=1.2,
+                          label=f"{c.code}: from {c.least_u_max / scale:.4f}e6")
+        ax.plot(c.least_u_max / scale, c.cost[0], "o", color=line.get_color(), ms=7)
+    ax.axvline(nominal / scale, color="k", ls=":", lw=1, label=f"module u_max {nominal / scale:g}e6")
+    ax.set_xlabel("input bound u_max (1e6 rad^2/s^2)")
+    ax.set_ylabel("least J_cost found ((rad/s)^4)")
+    ax.set_title(f"Cost against the input bound, {n} modules")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    ax.grid(alpha=0.3)
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)
 

@@ -23,7 +23,13 @@ Reformulations (designs are verified against the original constraints in numpy a
 * Two phases share one solver per pair set, selected by a parameter and the bounds of the wrench slacks ``s``:
   *feasibility* minimises ``|s|^2`` with ``(A u_k - b_k) / scale = s_k`` (constraint violation first, from any
   start), *cost* fixes ``s = 0`` and minimises the paper's cost. Ipopt drops fixed variables.
-* Solvers are built once per (pair set, iteration cap) and reused by every start and phase of the topology.
+* A third phase, *bound*, asks for the least actuator bound instead of the least cost (the least-bound search,
+  :func:`groundstation.design.optimize.least_bound`): the bound ``rho = u_max / params.u_max`` becomes a variable with
+  ``v <= rho`` rows, ``s = 0`` as in the cost phase, and the objective is ``rho`` (plus the paper's cost at
+  :data:`BOUND_REGULARIZATION`). Its solver adds only the variable and those rows, so the other two phases are
+  untouched by it.
+* Solvers are built once per (pair set, iteration cap, phase kind) and reused by every start and phase of the
+  topology.
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ from groundstation.assembly.verification import SOLVER_BOUND_RELAXATION
 
 FEASIBILITY = "feasibility"
 COST = "cost"
+BOUND = "bound"
 
 Pairs = tuple[tuple[int, int], ...]
 
@@ -58,6 +65,10 @@ PHASE1_REGULARIZATION = 1e-6
 manifold and the Hessian singular there: an n = 30 feasibility phase took 18-30 s at weight 1e-8 / 1e-10 and
 1.9 s at 1e-6, whose pull on the inputs leaves a wrench violation of order 1e-6 n m g (the cost phase then
 meets the wrenches exactly)."""
+BOUND_REGULARIZATION = PHASE1_REGULARIZATION
+"""Weight of the paper's cost (in ``v``, against the bound ``rho`` ~ 1) in the bound phase, for the same reason:
+the inputs below the bound are otherwise free. Its pull on the bound is below rounding: on §IV-C every least bound
+agreed to 7 digits with weight 0 and 1e-9."""
 
 
 def ipopt_options(tol: float, max_iter: int) -> dict:
@@ -78,6 +89,8 @@ class Layout:
     """1 with a free yaw, else 0."""
     pairs: int
     """Module pairs under clearance constraints."""
+    bound: int
+    """1 in the bound phase (the input bound is a variable), else 0."""
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -85,7 +98,7 @@ class Layout:
         position; ``plane_w``: the separating planes' normals, column-major (3, pairs)."""
         n, k, p = self.n, self.k, self.pairs
         return {"alpha": n + 1, "yaw": self.yaw, "v": 4 * n * k, "slack": 6 * k, "frames": 12 * n, "centroid": 3,
-                "plane_w": 3 * p, "plane_c": p}
+                "plane_w": 3 * p, "plane_c": p, "bound": self.bound}
 
     def pack(self, **blocks) -> np.ndarray:
         """One vector from every block by name: arrays (flattened column-major) or scalars (repeated)."""
@@ -202,7 +215,7 @@ class LiftedNlp:
         self.phase = ca.SX.sym("phase", 2)
         cost = sum(float(weights[j]) * ca.sumsqr(self.v[:, j]) for j in range(k))
         self.objective = self.phase[0] * cost + self.phase[1] * ca.sumsqr(self.slack)
-        self._solvers: dict[tuple[Pairs, int], ca.Function] = {}
+        self._solvers: dict[tuple[Pairs, int, bool], ca.Function] = {}
         self._callbacks: list[_StopCheck] = []
         self.build_s = 0.0
         """Wall time spent building solvers so far, s."""
@@ -210,15 +223,15 @@ class LiftedNlp:
     @property
     def unknowns(self) -> int:
         """Variables of the cost phase: angles, yaw, inputs, lifted frames and the centroid."""
-        sizes = self._layout(()).sizes
+        sizes = self._layout((), False).sizes
         return sum(sizes[name] for name in ("alpha", "yaw", "v", "frames", "centroid"))
 
     @property
     def equalities(self) -> int:
         return int(self.g_eq.shape[0])
 
-    def _solver(self, pairs: Pairs, max_iter: int) -> ca.Function:
-        key = (pairs, max_iter)
+    def _solver(self, pairs: Pairs, max_iter: int, bound: bool) -> ca.Function:
+        key = (pairs, max_iter, bound)
         if key not in self._solvers:
             t0 = time.perf_counter()
             half = self.clearance / 2
@@ -230,49 +243,54 @@ class LiftedNlp:
                 g_pairs += [ca.dot(wi, e) - ci - half for e in self.ends[i]]
                 g_pairs += [ci - ca.dot(wi, e) - half for e in self.ends[j]]
                 g_pairs.append(1.0 - ca.sumsqr(wi))
+            rho = ca.SX.sym("rho", int(bound))
             frames = ca.vertcat(*[ca.vertcat(ca.vec(rr), pp) for rr, pp in zip(self.rot, self.pos, strict=True)])
             symbols = {"alpha": self.alpha, "yaw": self.yaw, "v": ca.vec(self.v), "slack": self.slack,
-                       "frames": frames, "centroid": self.centroid, "plane_w": ca.vec(w), "plane_c": c}
-            x = ca.vertcat(*(symbols[name] for name in self._layout(pairs).sizes))
-            g = ca.vertcat(self.g_eq, *g_pairs)
+                       "frames": frames, "centroid": self.centroid, "plane_w": ca.vec(w), "plane_c": c,
+                       "bound": rho}
+            x = ca.vertcat(*(symbols[name] for name in self._layout(pairs, bound).sizes))
+            g_bound = [rho[0] - ca.vec(self.v)] if bound else []
+            g = ca.vertcat(self.g_eq, *g_pairs, *g_bound)
+            f = self.objective + rho[0] if bound else self.objective
             options = ipopt_options(self.tol, max_iter)
             if self.should_stop is not None:
                 sizes = {"x": x.shape[0], "f": 1, "g": g.shape[0], "lam_x": x.shape[0], "lam_g": g.shape[0],
                          "lam_p": self.phase.shape[0]}
                 options["iteration_callback"] = _StopCheck(sizes, self.should_stop)
                 self._callbacks.append(options["iteration_callback"])  # CasADi does not own Python callbacks
-            self._solvers[key] = ca.nlpsol("opti", "ipopt", {"x": x, "f": self.objective, "g": g, "p": self.phase},
-                                           options)
+            self._solvers[key] = ca.nlpsol("opti", "ipopt", {"x": x, "f": f, "g": g, "p": self.phase}, options)
             self.build_s += time.perf_counter() - t0
         return self._solvers[key]
 
     def solve(self, phase: str, alpha0: np.ndarray, yaw0: float, v0: np.ndarray, pairs: Pairs,
               max_iter: int) -> Solution:
-        """One solve from the given start, the module ``pairs`` under clearance constraints."""
-        solver = self._solver(pairs, max_iter)
-        layout, n, n_p = self._layout(pairs), self.n, len(pairs)
+        """One solve from the given start, the module ``pairs`` under clearance constraints. The bound phase
+        lifts the inputs' upper bound 1 and starts its bound variable at the largest of ``v0``."""
+        bound = phase == BOUND
+        solver = self._solver(pairs, max_iter, bound)
+        layout, n, n_p = self._layout(pairs, bound), self.n, len(pairs)
         # Natural bounds on the lifted variables keep Ipopt's steps sane: rotation entries lie in [-1, 1],
         # positions (relative to the root) within the chain's reach, plane normals in the unit ball and plane
         # offsets within reach of any capsule end.
         reach = 2.0 * self.params.l_c * n
         frame_hi = np.tile(np.concatenate([np.ones(9), np.full(3, reach)]), n)
         slack_hi = np.inf if phase == FEASIBILITY else 0.0
+        v_hi = np.inf if bound else 1.0
         lbx = layout.pack(alpha=-np.pi / 2, yaw=-4 * np.pi, v=0.0, slack=-slack_hi, frames=-frame_hi,
-                          centroid=-reach, plane_w=-1.0, plane_c=-(reach + self.params.capsule_b))
-        ubx = layout.pack(alpha=np.pi / 2, yaw=4 * np.pi, v=1.0, slack=slack_hi, frames=frame_hi,
-                          centroid=reach, plane_w=1.0, plane_c=reach + self.params.capsule_b)
+                          centroid=-reach, plane_w=-1.0, plane_c=-(reach + self.params.capsule_b), bound=0.0)
+        ubx = layout.pack(alpha=np.pi / 2, yaw=4 * np.pi, v=v_hi, slack=slack_hi, frames=frame_hi,
+                          centroid=reach, plane_w=1.0, plane_c=reach + self.params.capsule_b, bound=np.inf)
         pos, rot = kin.module_frames(self.topo, alpha0, self.params.l_c, yaw0)
         rel = [p - pos[0] for p in pos]  # the lifted positions are relative to the root module
         frames0 = np.concatenate([np.concatenate([r.ravel(order="F"), p]) for r, p in zip(rot, rel, strict=True)])
         planes_w, planes_c = separating_planes(capsule_ends(rel, rot, self.params), pairs)
         x0 = layout.pack(alpha=alpha0, yaw=np.array([yaw0])[:layout.yaw], v=v0, slack=0.0, frames=frames0,
-                         centroid=-pos[0], plane_w=planes_w, plane_c=planes_c)
-        n_eq = self.equalities
+                         centroid=-pos[0], plane_w=planes_w, plane_c=planes_c, bound=np.max(v0))
+        n_eq, n_in = self.equalities, 5 * n_p + (v0.size if bound else 0)
         t0 = time.perf_counter()
-        weights = [1.0, 0.0] if phase == COST else [PHASE1_REGULARIZATION, 1.0]
-        sol = solver(x0=np.clip(x0, lbx, ubx), lbx=lbx, ubx=ubx, p=weights,
-                     lbg=np.zeros(n_eq + 5 * n_p),
-                     ubg=np.concatenate([np.zeros(n_eq), np.full(5 * n_p, np.inf)]))
+        weights = {COST: [1.0, 0.0], FEASIBILITY: [PHASE1_REGULARIZATION, 1.0], BOUND: [BOUND_REGULARIZATION, 0.0]}
+        sol = solver(x0=np.clip(x0, lbx, ubx), lbx=lbx, ubx=ubx, p=weights[phase],
+                     lbg=np.zeros(n_eq + n_in), ubg=np.concatenate([np.zeros(n_eq), np.full(n_in, np.inf)]))
         wall = time.perf_counter() - t0
         stats = solver.stats()
         xs = layout.unpack(np.array(sol["x"]).ravel())
@@ -281,8 +299,8 @@ class LiftedNlp:
                         status=str(stats["return_status"]), iterations=int(stats["iter_count"]), wall_s=wall,
                         function_s=sum(v for k, v in stats.items() if k.startswith("t_wall_")))
 
-    def _layout(self, pairs: Pairs) -> Layout:
-        return Layout(self.n, self.k, self.yaw.shape[0], len(pairs))
+    def _layout(self, pairs: Pairs, bound: bool) -> Layout:
+        return Layout(self.n, self.k, self.yaw.shape[0], len(pairs), int(bound))
 
 
 def capsule_ends(positions, rotations, params: ModuleParams) -> np.ndarray:

@@ -15,12 +15,19 @@ This module runs them:
 
 The design reports the distinct local optima its starts reached, how many reached the best, the relative gap to
 the second best, and the Boender-Rinnooy Kan estimate of optima no start reached.
+
+:func:`least_bound` runs the same multi-start with another objective: the least actuator bound ``u_max`` at which
+the topology meets the wrench set (issue 23: why the paper's Fig. 5 shows the n = 4 designs it does). Each
+start's feasibility phase is the one above, at the nominal ``u_max``; the *bound* phase then frees the bound and
+minimises it, from that point whether or not it met the wrenches (§IV-C: every start of the T ``oS(W)E`` misses
+them at 4e6, and the bound phase from those points finds 4.0568e6 where a feasibility phase with the inputs
+unbounded led to a poorer basin, 4.0682e6). The result is a design verified at ``u_max`` = its own largest input.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -31,9 +38,9 @@ from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.assembly.verification import Verification, input_cost, verify
 from groundstation.design import starts as st
-from groundstation.design.certificates import Certificate, infeasibility_certificate
+from groundstation.design.certificates import Certificate, force_span_certificate, infeasibility_certificate
 from groundstation.design.interrupt import StopFlag, interruptible
-from groundstation.design.nlp import COST, FEASIBILITY, LiftedNlp, capsule_ends, close_pairs
+from groundstation.design.nlp import BOUND, COST, FEASIBILITY, LiftedNlp, capsule_ends, close_pairs
 
 SUCCEEDED = "Solve_Succeeded"
 """Ipopt's status of a fully converged solve (tolerance ``tol``, not only the acceptable level)."""
@@ -138,9 +145,13 @@ class Design:
     stop_reason: str = ""
     """``confirmed`` (best reached by enough starts), ``budget`` (start budget spent) or ``certificate``."""
     optima: tuple[float, ...] = ()
-    """Distinct costs of the verified designs the starts reached, ascending."""
+    """Distinct values of the objective at the verified designs the starts reached, ascending: costs
+    ((rad^2/s^2)^2), or input bounds (rad^2/s^2) for a least-bound design."""
     best_hits: int = 0
-    """Starts that reached the best cost."""
+    """Starts that reached the best value of the objective."""
+    objective: str = COST
+    """``cost`` (:func:`optimize`: the least cost at ``params.u_max``) or ``bound`` (:func:`least_bound`: the
+    least input bound, which is then ``params.u_max``)."""
 
     @property
     def feasible(self) -> bool:
@@ -182,7 +193,7 @@ class Design:
             "u": self.u.tolist(),
             "solver": {"iterations": self.iterations, "wall_s": self.wall_s, "active_pairs": self.active_pairs,
                        "stop_reason": self.stop_reason, "optima": list(self.optima), "best_hits": self.best_hits,
-                       "spread": self.spread,
+                       "spread": self.spread, "objective": self.objective,
                        "expected_unseen_optima": unseen if np.isfinite(unseen) else None,
                        "starts": [{**asdict(s), "cost": s.cost if s.feasible else None} for s in self.starts]},
             "certificate": asdict(self.certificate) if self.certificate else None,
@@ -216,6 +227,20 @@ def start_budget(n: int) -> tuple[int, int]:
     return 2, 3
 
 
+def with_input_bound(params: ModuleParams, u_max: float) -> ModuleParams:
+    """``params`` with another input bound ``u_max`` (rad^2/s^2). The motor map is dropped: the bound is the
+    model's actuator, and a bound beyond what the motor reaches is still an answer of the design study."""
+    return replace(params, u_max=u_max, motor_command=None)
+
+
+def _verified_bound(params: ModuleParams, u: np.ndarray) -> ModuleParams:
+    """What a least-bound design is verified at: its own largest input as ``u_max``, so its inputs meet the bound
+    with no tolerance. Inputs that are not finite and positive (a failed solve) keep the nominal bound and fail
+    the verification on their own."""
+    top = float(np.max(u))
+    return with_input_bound(params, top if np.isfinite(top) and top > 0 else params.u_max)
+
+
 @dataclass(frozen=True)
 class _Outcome:
     """A start's end point with its verification."""
@@ -223,7 +248,12 @@ class _Outcome:
     alpha: np.ndarray
     yaw: float
     u: np.ndarray
+    params: ModuleParams
+    """What the verification used (for the least-bound search: ``u_max`` = the largest input)."""
     cost: float
+    value: float
+    """The objective the multi-start ranks by: the cost, or the input bound ``params.u_max`` (``inf`` when
+    infeasible)."""
     status: str
     iterations: int
     verification: Verification
@@ -264,7 +294,8 @@ class _MultiStart:
             active |= new
         return alpha, yaw, v, status, iters
 
-    def run(self, start: st.Start, max_iter: int) -> tuple[_Outcome, StartReport]:
+    def run(self, start: st.Start, max_iter: int, objective: str) -> tuple[_Outcome, StartReport]:
+        """One start: the feasibility phase, then the phase of ``objective`` (``cost`` or ``bound``)."""
         t0, built = time.perf_counter(), self.nlp.build_s
         self.split = [0.0, 0.0]  # Ipopt, function evaluations, s
         p = self.params
@@ -280,52 +311,72 @@ class _MultiStart:
         alpha, yaw, v, status, iters = self._phase(FEASIBILITY, alpha, yaw, v, active, max_iter, 1)
         u = np.clip(v.T * p.u_max, 0.0, p.u_max)
         residual = verify(Assembly(self.topo, p, alpha, yaw), u, self.wrenches).max_wrench_residual
-        if residual > FEASIBILITY_GATE * self.scale:
+        # The bound phase runs from a point that misses the wrenches too: above the nominal bound it may meet them.
+        if objective == COST and residual > FEASIBILITY_GATE * self.scale:
             status = "Infeasible_Local"
         elif self.nlp.equalities <= self.nlp.unknowns:
             # (One module with several wrenches has more equalities than unknowns: Ipopt refuses the cost phase,
             # and the feasibility phase's point is the only candidate.)
-            alpha, yaw, v, status, it = self._phase(COST, alpha, yaw, v, active, max_iter, self.opts.max_rounds)
+            alpha, yaw, v, status, it = self._phase(objective, alpha, yaw, v, active, max_iter, self.opts.max_rounds)
             iters += it
-            u = np.clip(v.T * p.u_max, 0.0, p.u_max)
+            u = np.clip(v.T * p.u_max, 0.0, p.u_max if objective == COST else np.inf)
         self.known |= active
-        ver = verify(Assembly(self.topo, p, alpha, yaw), u, self.wrenches)
+        checked = p if objective == COST else _verified_bound(p, u)
+        ver = verify(Assembly(self.topo, checked, alpha, yaw), u, self.wrenches)
         cost = input_cost(u, self.weights) if ver.feasible else float("inf")
-        out = _Outcome(alpha, float(np.arctan2(np.sin(yaw), np.cos(yaw))), u, cost, status, iters, ver, len(active))
+        value = cost if objective == COST or not ver.feasible else checked.u_max
+        out = _Outcome(alpha, float(np.arctan2(np.sin(yaw), np.cos(yaw))), u, checked, cost, value, status, iters,
+                       ver, len(active))
         return out, StartReport(start.label, status, ver.feasible, cost, ver.max_wrench_residual, iters,
                                 time.perf_counter() - t0, *self.split, self.nlp.build_s - built)
 
 
-def _optima(costs: list[float], rtol: float) -> tuple[tuple[float, ...], int]:
-    """Distinct local optima among ``costs`` (ascending) and how many costs reached the least."""
+def _optima(values: list[float], rtol: float) -> tuple[tuple[float, ...], int]:
+    """Distinct local optima among ``values`` (ascending) and how many values reached the least."""
     distinct: list[float] = []
-    for c in sorted(costs):
+    for c in sorted(values):
         if not distinct or c > distinct[-1] * (1 + rtol):
             distinct.append(c)
-    best_hits = sum(c <= distinct[0] * (1 + rtol) for c in costs) if distinct else 0
+    best_hits = sum(c <= distinct[0] * (1 + rtol) for c in values) if distinct else 0
     return tuple(distinct), best_hits
 
 
 def _best(outcomes: list[_Outcome], rtol: float) -> _Outcome:
-    """The least-cost feasible outcome; of starts at the same optimum (within ``rtol``), one Ipopt fully converged
-    (their costs differ by rounding, 1e-10 relative in the toy case, so which of them is least is an accident of
-    summation order, and an "acceptable level" stop is the weaker certificate). Without a feasible outcome: the
-    least cost, then the least wrench residual (as before)."""
+    """The feasible outcome of least value; of starts at the same optimum (within ``rtol``), one Ipopt fully
+    converged (their values differ by rounding, 1e-10 relative in the toy case, so which of them is least is an
+    accident of summation order, and an "acceptable level" stop is the weaker certificate). Without a feasible
+    outcome: the least value, then the least wrench residual (as before)."""
     feasible = [o for o in outcomes if o.verification.feasible]
     if not feasible:
-        return min(outcomes, key=lambda o: (o.cost, o.verification.max_wrench_residual))
-    least = min(o.cost for o in feasible)
-    return min((o for o in feasible if o.cost <= least * (1 + rtol)), key=lambda o: (o.status != SUCCEEDED, o.cost))
+        return min(outcomes, key=lambda o: (o.value, o.verification.max_wrench_residual))
+    least = min(o.value for o in feasible)
+    return min((o for o in feasible if o.value <= least * (1 + rtol)), key=lambda o: (o.status != SUCCEEDED, o.value))
 
 
 def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray | None = None,
              opts: SolverOptions | None = None) -> Design:
     """Optimize connector angles and inputs of ``topo`` for the wrench set; multi-start, verified in numpy."""
-    opts = opts or SolverOptions()
+    return _multistart(topo, params, wrenches, weights, opts or SolverOptions(), COST)
+
+
+def least_bound(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray | None = None,
+                opts: SolverOptions | None = None) -> Design:
+    """The least input bound at which ``topo`` meets the wrench set, as the design that needs it: a design
+    verified at its own ``params.u_max`` (rad^2/s^2), the least bound any start reached (a local optimum, like
+    every cost, so an upper bound of the true least). Infeasible: with a ``force-span`` certificate no bound can
+    work; without one, no start met the wrenches. Same starts and budget as :func:`optimize`."""
+    return _multistart(topo, params, wrenches, weights, opts or SolverOptions(), BOUND)
+
+
+def _multistart(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights: np.ndarray | None,
+                opts: SolverOptions, objective: str) -> Design:
+    """The multi-start of :func:`optimize` (``objective`` ``cost``) and :func:`least_bound` (``bound``)."""
     wrenches = np.atleast_2d(np.asarray(wrenches, dtype=float))
     weights = np.ones(len(wrenches)) if weights is None else np.asarray(weights, dtype=float)
     t_start = time.perf_counter()
-    certificate = infeasibility_certificate(topo, params, wrenches)
+    # The thrust-capacity proof is about the nominal bound; only the span proof holds whatever the bound.
+    certificate = infeasibility_certificate(topo, params, wrenches) if objective == COST else \
+        force_span_certificate(topo, wrenches)
     if certificate is not None:
         alpha = np.zeros(topo.n + 1)
         u = np.zeros((len(wrenches), 4 * topo.n))
@@ -333,7 +384,7 @@ def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights
                       cost=float("inf"), status="Infeasible_Certified", iterations=0,
                       wall_s=time.perf_counter() - t_start,
                       verification=verify(Assembly(topo, params, alpha), u, wrenches), certificate=certificate,
-                      stop_reason="certificate")
+                      stop_reason="certificate", objective=objective)
     lo, hi = start_budget(topo.n)
     min_starts = min(opts.min_starts or lo, opts.max_starts or hi)
     max_starts = opts.max_starts or hi
@@ -346,22 +397,23 @@ def optimize(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weights
     with interruptible() as stop:
         runs = _MultiStart(topo, params, wrenches, weights, opts, stop)
         for i, start in enumerate(plan):
-            out, rep = runs.run(start, first_cap)
+            out, rep = runs.run(start, first_cap, objective)
             outcomes.append(out)
             reports.append(rep)
-            _, hits = _optima([o.cost for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
+            _, hits = _optima([o.value for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
             if i + 1 >= min_starts and hits >= opts.confirmations:
                 stop_reason = "confirmed"
                 break
         if not any(o.verification.feasible for o in outcomes) and opts.max_iter > first_cap:
             for start, rep in list(zip(plan, reports, strict=False)):
                 if rep.status == "Maximum_Iterations_Exceeded":
-                    out, rep2 = runs.run(start, opts.max_iter)
+                    out, rep2 = runs.run(start, opts.max_iter, objective)
                     outcomes.append(out)
                     reports.append(rep2)
-    optima, best_hits = _optima([o.cost for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
+    optima, best_hits = _optima([o.value for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
     best = _best(outcomes, opts.same_optimum_rtol)
-    return Design(topology=topo, params=params, wrenches=wrenches, weights=weights, alpha=np.asarray(best.alpha),
+    return Design(topology=topo, params=best.params, wrenches=wrenches, weights=weights, alpha=np.asarray(best.alpha),
                   yaw=best.yaw, u=best.u, cost=best.cost, status=best.status, iterations=best.iterations,
                   wall_s=time.perf_counter() - t_start, verification=best.verification, starts=tuple(reports),
-                  active_pairs=best.active_pairs, stop_reason=stop_reason, optima=optima, best_hits=best_hits)
+                  active_pairs=best.active_pairs, stop_reason=stop_reason, optima=optima, best_hits=best_hits,
+                  objective=objective)

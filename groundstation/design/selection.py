@@ -2,15 +2,19 @@
 
 For n = 1, 2, ... solve every candidate topology of n modules (exhaustive, sampled, or from a candidates file);
 stop at the first n with a feasible design and pick the least cost; the runner-up and its gap are reported with
-it. Candidates run in parallel, in a local process pool or on a Dask distributed scheduler. Every finished
-candidate is appended to a JSON-lines results file at once, with its design record, so an interrupted sweep
-(Ctrl-C, a kill) resumes without redoing finished candidates.
+it. Every candidate also gets the least input bound ``u_max`` at which it is feasible
+(:func:`groundstation.design.optimize.least_bound`), or the proof that no bound makes it so; the figure of cost
+against ``u_max`` per topology comes from :func:`cost_against_bound`. Candidates run in parallel, in a local
+process pool or on a Dask distributed scheduler. Every finished candidate is appended to a JSON-lines results file
+at once, with its design records, so an interrupted sweep (Ctrl-C, a kill) resumes without redoing finished
+candidates.
 
 A resumed row is not trusted: it is reused only if its fingerprint includes this solver's version
-(:func:`solver_version`), and only after its record has been re-verified from the saved angles and inputs
-(:func:`groundstation.assembly.assembly_file.checked_record`) and the row agrees with it: its topology, feasibility,
-cost, clearance, residual and certificate. A row that disagrees (an edited results file) is a ConfigError naming
-``FILE:LINE`` and the key; it is never reported as the best.
+(:func:`solver_version`), and only after its records have been re-verified from the saved angles and inputs
+(:func:`groundstation.assembly.assembly_file.checked_record`) and the row agrees with them: its topology,
+feasibility, cost, clearance, residual and certificate, and its least bound (the least-bound design passes the
+verification at that bound) with its cost and its proof of never being feasible. A row that disagrees (an edited
+results file) is a ConfigError naming ``FILE:LINE`` and the key; it is never reported as the best.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import json
 import math
 import signal
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -32,13 +36,13 @@ import groundstation.assembly
 import groundstation.design
 from groundstation import __version__
 from groundstation.assembly.assembly import Assembly
-from groundstation.assembly.assembly_file import COST_RTOL, POSE_TOLERANCE, checked_record
+from groundstation.assembly.assembly_file import COST_RTOL, POSE_TOLERANCE, CheckedDesign, checked_record
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
 from groundstation.assembly.verification import Verification
-from groundstation.design.certificates import infeasibility_certificate
+from groundstation.design.certificates import force_span_certificate, infeasibility_certificate
 from groundstation.design.enumeration import SamplingPolicy, enumerate_levels
-from groundstation.design.optimize import SolverOptions, optimize
+from groundstation.design.optimize import SolverOptions, least_bound, optimize, with_input_bound
 from groundstation.design.task import Task
 from groundstation.errors import ConfigError, TopologyError
 from groundstation.output import writing
@@ -72,6 +76,23 @@ class CandidateResult:
     stop_reason: str = ""
     certificate: str = ""
     """Proof of infeasibility, when there is one."""
+    # The least-bound fields have defaults so that rows written before them still parse: they belong to another
+    # solver version and are solved again, not refused as malformed.
+    least_searched: bool = False
+    """Whether the least-bound search ran (``design --least-u-max``); the fields below are its results."""
+    least_u_max: float = math.inf
+    """Least input bound ``u_max`` at which a start met every constraint, rad^2/s^2; the design needing it is
+    verified at that bound (``least_u_max_record`` of the results line). ``inf`` when no start did, or when
+    ``never_feasible``."""
+    least_u_max_cost: float = math.inf
+    """Cost of that design, (rad^2/s^2)^2."""
+    least_u_max_hits: int = 0
+    """Starts of the least-bound search that reached it."""
+    least_u_max_s: float = 0.0
+    """Wall time of the least-bound search, s."""
+    never_feasible: str = ""
+    """Proof that no input bound makes the topology feasible (its thrust axes cannot span the task's forces), or
+    empty."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,24 +151,35 @@ def solver_version() -> str:
     return digest.hexdigest()[:16]
 
 
-def fingerprint(task: Task, params: ModuleParams, opts: SolverOptions, code: str) -> str:
-    blob = json.dumps([asdict(task), asdict(params), asdict(opts), code, solver_version()], sort_keys=True,
-                      default=str)
+def fingerprint(task: Task, params: ModuleParams, opts: SolverOptions, code: str, least: bool = False) -> str:
+    """What a results line was solved for (``least``: with the least-bound search); a line is reused only for the
+    same."""
+    what = [asdict(task), asdict(params), asdict(opts), code, solver_version()] + (["least"] if least else [])
+    blob = json.dumps(what, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def solve_candidate(code: str, task: Task, params: ModuleParams, opts: SolverOptions) -> tuple[CandidateResult, dict]:
-    """Solve one topology (runs in a worker process); returns its row and its assembly record."""
+def solve_candidate(code: str, task: Task, params: ModuleParams, opts: SolverOptions,
+                    least: bool = False) -> tuple[CandidateResult, dict, dict | None]:
+    """Solve one topology (runs in a worker process): its least cost and, with ``least``, its least input bound
+    (about as long again as the cost search: not by default). Returns its row, its assembly record and the record
+    of its least-bound design (None without ``least``)."""
     topo = Topology.from_code(code)
     wrenches, weights = task.wrenches_for(topo.n, params)
     d = optimize(topo, params, wrenches, weights, opts)
     row = CandidateResult(topo.n, code, d.status, d.feasible, d.cost, d.iterations, d.wall_s,
                           d.verification.min_capsule_distance, d.verification.max_wrench_residual,
-                          fingerprint(task, params, opts, code), starts=len(d.starts),
+                          fingerprint(task, params, opts, code, least), starts=len(d.starts),
                           feasible_starts=sum(s.feasible for s in d.starts), optima=len(d.optima),
                           best_hits=d.best_hits, spread=d.spread, stop_reason=d.stop_reason,
                           certificate=d.certificate.reason if d.certificate else "")
-    return row, d.record(task.name)
+    if not least:
+        return row, d.record(task.name), None
+    bound = least_bound(topo, params, wrenches, weights, opts)
+    row = replace(row, least_searched=True, least_u_max=bound.params.u_max if bound.feasible else math.inf,
+                  least_u_max_cost=bound.cost, least_u_max_hits=bound.best_hits, least_u_max_s=bound.wall_s,
+                  never_feasible=bound.certificate.reason if bound.certificate else "")
+    return row, d.record(task.name), bound.record(task.name)
 
 
 def candidate_codes(n: int, sampling: SamplingPolicy | None, symmetry: str = "C4") -> list[str]:
@@ -163,6 +195,8 @@ class SavedRow:
     row: CandidateResult
     record: dict | None
     """Its design record (``None`` in files written before records were kept for infeasible rows)."""
+    least_record: dict | None
+    """The record of its least-bound design (``None`` in files written before there was one)."""
     src: str
     """``FILE:LINE`` it was read from, for errors."""
 
@@ -183,7 +217,7 @@ def read_results(path: Path) -> dict[str, SavedRow]:
             if lineno == len(lines):
                 continue
             raise ConfigError(f"line {lineno} is not a result row: {exc}", path=str(path)) from None
-        done[row.key] = SavedRow(row, entry.get("record"), f"{path}:{lineno}")
+        done[row.key] = SavedRow(row, entry.get("record"), entry.get("least_u_max_record"), f"{path}:{lineno}")
     return done
 
 
@@ -192,11 +226,11 @@ def _close(stored, recomputed: float, rel: float, abs_: float = 0.0) -> bool:
     return isinstance(stored, int | float) and math.isclose(stored, recomputed, rel_tol=rel, abs_tol=abs_)
 
 
-def _reverified(saved: SavedRow, task: Task, params: ModuleParams) -> tuple[CandidateResult, dict]:
-    """A resumed row and its record, once the record re-verifies from its angles and inputs and the row agrees
-    with it and with this task; otherwise a ConfigError naming ``FILE:LINE`` and the key (``row.*`` for the row,
-    the record's own keys otherwise)."""
-    row, record, src = saved.row, saved.record, saved.src
+def _checked_design(record: dict | None, src: str, row: CandidateResult, task: Task, params: ModuleParams,
+                    any_bound: bool = False) -> tuple[Assembly, CheckedDesign]:
+    """A results line's design record re-verified from its angles and inputs, once it is a design of the row's
+    topology for this task and the module parameters ``params`` (with ``any_bound``: but for the input bound, as a
+    least-bound design is verified at its own); otherwise a ConfigError naming ``src`` and the key."""
     if record is None:
         raise ConfigError("no design record to verify the row against", path=src, key="record")
     assembly, design = checked_record(record, src)
@@ -211,15 +245,25 @@ def _reverified(saved: SavedRow, task: Task, params: ModuleParams) -> tuple[Cand
                           key="row.code")
     if row.n != assembly.n:
         raise ConfigError(f"says {row.n}, but {code} has {assembly.n} modules", path=src, key="row.n")
-    if assembly.params != params:
+    if assembly.params != (with_input_bound(params, assembly.params.u_max) if any_bound else params):
         raise ConfigError("not the module parameters of this run", path=src, key="module_params")
     wrenches, weights = task.wrenches_for(assembly.n, params)
     for key, stored, wanted in (("wrenches", design.wrenches, wrenches), ("weights", design.weights, weights)):
         if stored.shape != wanted.shape or not np.allclose(stored, wanted, rtol=1e-12, atol=0.0):
             raise ConfigError(f"not the task's {key} for {assembly.n} modules", path=src, key=key)
+    return assembly, design
+
+
+def _reverified(saved: SavedRow, task: Task, params: ModuleParams) -> tuple[CandidateResult, dict]:
+    """A resumed row and its record, once the record and the least-bound record re-verify from their angles and
+    inputs and the row agrees with them and with this task; otherwise a ConfigError naming ``FILE:LINE`` and the
+    key (``row.*`` for the row, the records' own keys otherwise)."""
+    row, src = saved.row, saved.src
+    assembly, design = _checked_design(saved.record, src, row, task, params)
     ver = design.verification
+    wrenches = design.wrenches
     certificate = infeasibility_certificate(assembly.topology, params, wrenches)
-    checks = (  # the row's field, its value recomputed from the record, whether they agree
+    checks = (  # the row's field, its value recomputed from the records, whether they agree
         ("feasible", ver.feasible, row.feasible is ver.feasible),
         ("cost", design.cost, _close(row.cost, design.cost, COST_RTOL)),
         ("min_clearance_m", ver.min_capsule_distance, _close(row.min_clearance_m, ver.min_capsule_distance, 1e-9,
@@ -229,11 +273,21 @@ def _reverified(saved: SavedRow, task: Task, params: ModuleParams) -> tuple[Cand
         ("certificate", certificate.reason if certificate else "",
          row.certificate == (certificate.reason if certificate else "")),
     )
+    if row.least_searched:  # (the fingerprint says the line was solved with the search: it has the record)
+        least_assembly, least = _checked_design(saved.least_record, f"{src}: least_u_max_record", row, task, params,
+                                                any_bound=True)
+        never = force_span_certificate(assembly.topology, wrenches)
+        least_u_max = least_assembly.params.u_max if least.verification.feasible else math.inf
+        checks += (
+            ("least_u_max", least_u_max, _close(row.least_u_max, least_u_max, 0.0)),
+            ("least_u_max_cost", least.cost, _close(row.least_u_max_cost, least.cost, COST_RTOL)),
+            ("never_feasible", never.reason if never else "", row.never_feasible == (never.reason if never else "")),
+        )
     for name, recomputed, ok in checks:
         if not ok:
             raise ConfigError(f"says {getattr(row, name)!r}, but its record, re-verified, gives {recomputed!r}",
                               path=src, key=f"row.{name}")
-    return row, record
+    return row, saved.record
 
 
 def _truncate_torn_tail(path: Path) -> None:
@@ -282,21 +336,22 @@ class _Runner:
         if self._client is not None:
             self._client.close()
 
-    def map(self, codes: list[str], task: Task, params: ModuleParams, opts: SolverOptions) -> Iterable:
+    def map(self, codes: list[str], task: Task, params: ModuleParams, opts: SolverOptions,
+            least: bool) -> Iterable:
         if self._client is not None:
             from distributed import as_completed as dask_completed
 
-            futures = [self._client.submit(solve_candidate, c, task, params, opts, pure=False) for c in codes]
+            futures = [self._client.submit(solve_candidate, c, task, params, opts, least, pure=False) for c in codes]
             for fut in dask_completed(futures):
                 yield fut.result()
         elif self._pool is not None:
-            yield from self._pool.imap_unordered(_solve_args, [(c, task, params, opts) for c in codes])
+            yield from self._pool.imap_unordered(_solve_args, [(c, task, params, opts, least) for c in codes])
         else:
             for c in codes:
-                yield solve_candidate(c, task, params, opts)
+                yield solve_candidate(c, task, params, opts, least)
 
 
-def _solve_args(args: tuple) -> tuple[CandidateResult, dict]:
+def _solve_args(args: tuple) -> tuple[CandidateResult, dict, dict | None]:
     return solve_candidate(*args)
 
 
@@ -304,9 +359,10 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
            candidates: dict[int, list[str]] | None = None, opts: SolverOptions | None = None, workers: int = 1,
            scheduler: str | None = None, results_path: str | Path | None = None,
            on_level: Callable[[int, int], None] | None = None,
-           on_result: Callable[[CandidateResult], None] | None = None, min_modules: int = 1) -> Selection:
+           on_result: Callable[[CandidateResult], None] | None = None, min_modules: int = 1,
+           least: bool = False) -> Selection:
     """Algorithm 2 from ``min_modules`` on. ``candidates`` (codes per n) overrides enumeration; ``results_path``
-    makes it resumable."""
+    makes it resumable; ``least``: each candidate's least input bound too (:func:`solve_candidate`)."""
     opts = opts or SolverOptions()
     path = Path(results_path) if results_path else None
     done = read_results(path) if path else {}
@@ -320,7 +376,7 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
         level: list[tuple[CandidateResult, dict | None]] = []
         todo = []
         for c in codes:
-            key = fingerprint(task, params, opts, c)
+            key = fingerprint(task, params, opts, c, least)
             if key in done:
                 level.append(_reverified(done[key], task, params))
                 if on_result is not None:
@@ -328,11 +384,12 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
             else:
                 todo.append(c)
         with _Runner(workers, scheduler) as runner:
-            for row, record in runner.map(todo, task, params, opts):
+            for row, record, least_record in runner.map(todo, task, params, opts, least):
                 level.append((row, record))
                 if path is not None:
                     with writing(path), path.open("a") as fh:  # one line per finished candidate, flushed at once
-                        fh.write(json.dumps({"row": asdict(row), "record": record}) + "\n")
+                        fh.write(json.dumps({"row": asdict(row), "record": record,
+                                             "least_u_max_record": least_record}) + "\n")
                 if on_result is not None:
                     on_result(row)
         rows.extend(r for r, _ in level)
@@ -342,6 +399,72 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
             src = done[best_row.key].src if best_row.key in done else f"the design of {best_row.code}"
             return Selection(SelectedDesign.of(best_row, best_record, src), n, tuple(rows))
     return Selection(None, None, tuple(rows))
+
+
+CURVE_HEADROOM = 1.2
+"""The figure's input bounds reach this factor above the largest least bound (or the nominal bound): far enough
+for the costs of the topologies feasible at the nominal bound to cross as the bound relaxes."""
+
+
+@dataclass(frozen=True)
+class CostCurve:
+    """One topology's least cost against the input bound: why the paper's Fig. 5 shows the designs it shows."""
+
+    code: str
+    least_u_max: float
+    """Its row's least input bound, rad^2/s^2 (``inf``: none found, or never)."""
+    never_feasible: str
+    """Its row's proof that no bound works, or empty."""
+    u_max: tuple[float, ...]
+    """Input bounds at which a design was found, ascending, rad^2/s^2: the least bound, the nominal bound when the
+    row is feasible there, and the grid points above the least bound where a solve was feasible."""
+    cost: tuple[float, ...]
+    """The least cost of the designs found at each bound or a smaller one (a design within a bound is within every
+    larger one; the multi-start at a larger bound may stop in a poorer optimum: n = 12, up to 1 %),
+    (rad^2/s^2)^2."""
+
+
+def bound_grid(rows: Iterable[CandidateResult], nominal: float, points: int = 8) -> np.ndarray:
+    """Input bounds for the figure, rad^2/s^2: ``points`` evenly from the least bound any row needs to
+    :data:`CURVE_HEADROOM` times the largest least bound or the ``nominal`` bound, whichever is larger; empty when
+    no row has a least bound."""
+    least = [r.least_u_max for r in rows if math.isfinite(r.least_u_max)]
+    if not least:
+        return np.array([])
+    return np.linspace(min(least), CURVE_HEADROOM * max(*least, nominal), points)
+
+
+def cost_against_bound(task: Task, params: ModuleParams, rows: Iterable[CandidateResult], bounds: np.ndarray,
+                       opts: SolverOptions | None = None,
+                       on_solve: Callable[[int, int], None] | None = None) -> list[CostCurve]:
+    """Each row's least cost at every bound of ``bounds`` (rad^2/s^2) above its least bound, solved by
+    :func:`optimize` with that ``u_max`` in this process, plus the designs its row already has: at the least bound
+    and at the nominal ``params.u_max``. ``on_solve(done, total)`` is called after each solve."""
+    plan = []
+    for r in rows:
+        known = {}
+        if math.isfinite(r.least_u_max):
+            known[r.least_u_max] = r.least_u_max_cost
+        if r.feasible:
+            known[params.u_max] = r.cost
+        plan.append((r, known, [float(b) for b in bounds if b > r.least_u_max and b not in known]))
+    total, done = sum(len(todo) for *_, todo in plan), 0
+    curves = []
+    for r, points, todo in plan:
+        topo = Topology.from_code(r.code)
+        wrenches, weights = task.wrenches_for(topo.n, params)
+        for bound in todo:
+            d = optimize(topo, with_input_bound(params, bound), wrenches, weights, opts)
+            if d.feasible:
+                points[bound] = d.cost
+            done += 1
+            if on_solve is not None:
+                on_solve(done, total)
+        ordered = sorted(points.items())
+        least = np.minimum.accumulate([c for _, c in ordered]) if ordered else []
+        curves.append(CostCurve(r.code, r.least_u_max, r.never_feasible, tuple(b for b, _ in ordered),
+                                tuple(float(c) for c in least)))
+    return curves
 
 
 def results_table(results: Iterable[CandidateResult]) -> list[dict]:

@@ -53,6 +53,15 @@ _STATE = _obj("the state the controller used (the estimator's, at the period's t
     "orientation": _vec(4, "quaternion x, y, z, w"), "rpy_deg": _vec(3, "ZYX roll, pitch, yaw, deg"),
     "omega_radps": _vec(3, "body rate, body frame, rad/s")})
 
+_MOCAP_COUNTS = {
+    "rejected": {"type": "integer", "description": "jumps, stale or out-of-order samples"},
+    "malformed": {"type": "integer", "description": "samples that did not decode"},
+    "missed": {"type": "integer", "description": "gaps in the publisher's sequence"}}
+_ESTIMATOR_COUNTS = {
+    "rejected": {"type": "integer", "description": "poses the innovation gates rejected so far"},
+    "late": {"type": "integer", "description": "poses captured before the oldest estimate kept, dropped unused so "
+                                              "far"}}
+
 CONTROL = _obj("one control period", {
     "t_s": _num("flight time since the first period, s"),
     "phase": {"type": "string", "description": "takeoff, settle, track, hold, landing, done, emergency"},
@@ -80,10 +89,7 @@ CONTROL = _obj("one control period", {
     "command_min_frac_umax": _num("the smallest, fraction of u_max (0: a rotor at its lower bound)"),
     "motors_off": {"type": "boolean", "description": "the motors were commanded off in this period"},
     "mocap_age_s": _num("time since the capture of the newest pose fused, s (absent before the first)"),
-    "mocap": _obj("the pose subscriber's counters so far (as /mocap/stats has them once a second)", {
-        "rejected": {"type": "integer", "description": "jumps, stale or out-of-order samples"},
-        "malformed": {"type": "integer", "description": "samples that did not decode"},
-        "missed": {"type": "integer", "description": "gaps in the publisher's sequence"}}),
+    "mocap": _obj("the pose subscriber's counters so far (as /mocap/stats has them once a second)", _MOCAP_COUNTS),
     "estimate": _obj("the estimator's uncertainty and health", {
         "position_sigma_m": _num("position std per axis, m"),
         "velocity_sigma_mps": _num("velocity std per axis, m/s"),
@@ -93,13 +99,15 @@ CONTROL = _obj("one control period", {
         "innovation_position_m": _vec(3, "newest pose's position minus the estimate at its capture time, m"),
         "innovation_attitude_deg": _vec(3, "newest pose's attitude relative to the estimate, body rotation "
                                            "vector, deg"),
-        "fused": {"type": "integer", "description": "poses fused so far"},
-        "rejected": {"type": "integer", "description": "poses the innovation gates rejected so far"},
-        "late": {"type": "integer", "description": "poses captured before the oldest estimate kept, dropped unused "
-                                                  "so far"}}),
+        "fused": {"type": "integer", "description": "poses fused so far"}, **_ESTIMATOR_COUNTS}),
     "loop": _obj("timing of the previous period", {
         "start_error_s": _num("s"), "compute_s": _num("s"), "overruns": {"type": "integer"}}),
 }, required=("t_s", "phase", "modules"))
+
+FLIGHT_START = _obj("the counters as preflight passed, before arming: where the counts of every period's record "
+                    "start from (a replayed window from the first period has its own)", {
+    "mocap": _obj("the pose subscriber's counters", _MOCAP_COUNTS),
+    "estimate": _obj("the estimator's counters", _ESTIMATOR_COUNTS)}, required=("mocap", "estimate"))
 
 TELEMETRY = _obj("what the modules report, a tenth of the control rate", {
     "t_s": _num("flight time, s"),
@@ -158,7 +166,7 @@ FLIGHT_SUMMARY = _obj("the flight's figures, as groundstation fly --json prints 
     "stalls": {"type": "integer", "description": "loop stalls logged"}})
 
 SCHEMAS = {"/control": CONTROL, "/backend/telemetry": TELEMETRY, "/mocap/stats": MOCAP_STATS,
-           "/loop/timing": LOOP_TIMING, "/flight/summary": FLIGHT_SUMMARY}
+           "/loop/timing": LOOP_TIMING, "/flight/start": FLIGHT_START, "/flight/summary": FLIGHT_SUMMARY}
 
 
 def schema_of(topic: str) -> bytes:

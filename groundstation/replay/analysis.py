@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from groundstation.assembly.assembly_file import assembly_from_record
+from groundstation.assembly.assembly_file import flown_assembly
 from groundstation.control.allocation import allocate, allocate_bounded
 from groundstation.control.geometric import Gains, control
 from groundstation.control.model import ControlModel
@@ -28,13 +28,19 @@ from groundstation.errors import ConfigError
 from groundstation.replay.reader import commands, is_mocap_pose, open_log
 from groundstation.rotations import quat_to_matrix
 from groundstation.runtime.metrics import FlightFigures, FlightMetrics, figures_of
+from groundstation.runtime.plots import Series
 
 NO_END = ("the log has no end of flight: its flight process stopped before finishing it (killed, crashed, or its log "
           "writer failed first); the phase is the last one logged")
 """The reason of a log without the flight's summary: never an end in a phase with no reason."""
 SERIES_POINTS = 20_000
 """Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
-PHASES = tuple(Phase)
+RATE_MIN_SPAN_S = 0.5
+"""Shortest stretch of arrivals a mocap rate is measured over, s: poses are timed when a period polls them (one
+period late at most), so over 0.5 s a 250 Hz loop's polling moves the rate by 1 % at most; shorter, it could not
+say (:func:`arrival_rate`)."""
+RATE_MIN_POSES = 3
+"""Fewest poses a mocap rate is measured from."""
 
 
 class Decimated:
@@ -58,24 +64,6 @@ class Decimated:
 def _per_module(modules: list[dict], key: str) -> np.ndarray:
     """A telemetry value of every module, (n,), NaN where a module's record leaves it out (not measured)."""
     return np.array([m.get(key, np.nan) for m in modules], float)
-
-
-@dataclass(frozen=True, eq=False)
-class Series:
-    """Decimated time series of a flight, for plots; angles in degrees, motors as fractions of u_max."""
-
-    t: np.ndarray
-    position: np.ndarray
-    """(k, 3) flown (the physics truth in simulation), m."""
-    position_ref: np.ndarray
-    rpy: np.ndarray
-    """(k, 3) roll, pitch, yaw flown, deg."""
-    rpy_target: np.ndarray
-    """(k, 3) of the attitude target the controller aimed at, deg."""
-    motors: np.ndarray
-    """(k, n, 4)."""
-    phase: np.ndarray
-    """(k,) index into PHASES."""
 
 
 @dataclass(frozen=True)
@@ -111,11 +99,12 @@ class RerunStats:
 
 class Rerun:
     """The logged state and setpoint of each period through :func:`~groundstation.control.geometric.control` and
-    the allocation of this code, with the log's assembly and (unless given) its gains and allocation mode."""
+    the allocation of this code, with the log's assembly (as flown: its design is not judged again) and (unless
+    given) its gains and allocation mode."""
 
     def __init__(self, assembly_record: dict, config: dict, gains: Gains | None = None,
                  allocation: str | None = None, src: str = "log") -> None:
-        self.model = ControlModel.from_assembly(assembly_from_record(assembly_record, src))
+        self.model = ControlModel.from_assembly(flown_assembly(assembly_record, src))
         self.gains = gains or Gains(**config["gains"])
         mode = allocation or config.get("allocation", "clip")
         self.alloc = allocate if mode == "clip" else allocate_bounded
@@ -195,12 +184,14 @@ class ReplayFigures(FlightFigures):
     period's record (None: a log whose records have no count, in a window; unwindowed, its loop summary's)."""
     loop_period_error_max_ms: float
     mocap_rate_hz: float
-    """Poses that arrived per second, from the first period to the last (every pose of the body's source, as
-    logged when it arrived; NaN: under two periods, or no pose logged)."""
+    """Poses per second among those that arrived from the first period to the last (every pose of the body's
+    source, as logged when it arrived), by :func:`arrival_rate` (NaN: too few to say, or none logged)."""
     mocap_rejected: int | None
-    """Poses the subscriber rejected (jumps, stale or out of order), from its counts in the periods' records
-    (None: a log whose records have no counts, in a window; unwindowed, its last ``/mocap/stats`` count, since
-    the stream started)."""
+    """Poses the subscriber rejected (jumps, stale or out of order), from its counts in the periods' records: in a
+    window, those of its periods (from the first period: less the counts as preflight passed, ``/flight/start``);
+    unwindowed, since the stream began, preflight included, like the events (None: a window of a log whose
+    records have no counts, or from the first period of a log without ``/flight/start``; unwindowed, a log
+    whose records have no counts gives its last ``/mocap/stats`` count)."""
     mocap_malformed: int | None
     mocap_missed: int | None
     duration_s: float
@@ -221,11 +212,12 @@ class ReplayFigures(FlightFigures):
     link_latency_ms_max: tuple[float, ...]
     link_loss_max: tuple[float, ...]
     """Largest lost share of commands per module."""
-    estimator_rejected: int
-    """Poses the estimator's innovation gates rejected (0 for logs before it counted them)."""
-    estimator_late: int
-    """Poses that reached the estimator too late to use (captured before the history it keeps; 0 for logs before
-    it counted them)."""
+    estimator_rejected: int | None
+    """Poses the estimator's innovation gates rejected, counted as ``mocap_rejected`` is (0 for logs before it
+    counted them)."""
+    estimator_late: int | None
+    """Poses that reached the estimator too late to use (captured before the history it keeps), counted as
+    ``mocap_rejected`` is (0 for logs before it counted them)."""
     position_sigma_max_m: float
     """Largest position std the estimator reported (blind flight shows here), m (NaN: not logged)."""
     innovation_position_p95_mm: float
@@ -236,21 +228,29 @@ class ReplayFigures(FlightFigures):
 
 @dataclass
 class _Counts:
-    """Running counts that every period's record holds (so far, that period's included), over a window: their
-    values at its last period less those at the record before it (zero before the first record)."""
+    """Running counts that every period's record holds (since the stream began, that period's included), over a
+    window: their values at its last period less those just before its first: the record before it, or for a
+    window from the first period the counts as preflight passed (``/flight/start``; the first record's include
+    the preflight's, and how many are its period's own no record says)."""
 
-    before: dict = field(default_factory=dict)
+    before: dict | None = None
+    """The counts just before the window (None: not logged)."""
     last: dict | None = None
+    """...at its last period (None: no record in it had them)."""
 
     def add(self, counts: dict, inside: bool) -> None:
+        """A period's counts, or (not ``inside``, before any period) those as preflight passed."""
         if inside:
             self.last = counts
         elif self.last is None:  # a record before the window
             self.before = counts
 
-    def result(self) -> dict | None:
-        """The counts over the window (None: no record in it had them)."""
-        return None if self.last is None else {k: v - self.before.get(k, 0) for k, v in self.last.items()}
+    def result(self, windowed: bool) -> dict | None:
+        """The counts over the window, each None where its start is not logged; unwindowed, since the stream
+        began (None: no record in the window had them)."""
+        if self.last is None or not windowed:
+            return self.last
+        return {k: None if self.before is None else v - self.before.get(k, 0) for k, v in self.last.items()}
 
 
 @dataclass
@@ -296,9 +296,9 @@ class _Estimates:
             self.position.add(math.hypot(*e["innovation_position_m"]) * 1e3)
             self.attitude.add(math.hypot(*e["innovation_attitude_deg"]))
 
-    def result(self) -> dict:
+    def result(self, windowed: bool) -> dict:
         p95 = lambda d: float(np.percentile(d.rows, 95)) if d.rows else math.nan  # noqa: E731
-        counts = self.counts.result() or {}
+        counts = self.counts.result(windowed) or {}
         return {"estimator_rejected": counts.get("rejected", 0), "estimator_late": counts.get("late", 0),
                 "position_sigma_max_m": self.sigma_max if self.sigma_max > -math.inf else math.nan,
                 "innovation_position_p95_mm": p95(self.position), "innovation_attitude_p95_deg": p95(self.attitude)}
@@ -315,12 +315,15 @@ class Replay:
     warnings: tuple[str, ...]
     """What reading skipped: one line per damaged stretch and a line of totals (empty for an intact log)."""
     metadata: dict
+    """``config`` (the flight config, a dict), ``config_path``, ``code_version``, ``assembly`` (the assembly record,
+    None in a log before it was metadata) and ``started_s`` (when flight time 0 was, s since the epoch)."""
     metrics: ReplayFigures
     events: list
     """(flight time s, level, text), every event the flight logged in the window."""
     timeline: list
     """(flight time s, phase): the phase at the window's first period, then at every change of phase in it."""
     series: Series
+    """Decimated to at most :data:`SERIES_POINTS` rows, for plots."""
     rerun: RerunFigures | None
 
 
@@ -331,8 +334,27 @@ def _config(metadata: dict, src: str) -> dict:
         raise ConfigError("the log's config metadata is not JSON", path=src, key="config") from None
 
 
+def _assembly(metadata: dict, src: str) -> dict | None:
+    """The log's assembly record (None: a log written before the assembly was metadata)."""
+    try:
+        return json.loads(metadata.get("assembly", "null"))
+    except ValueError:
+        raise ConfigError("the log's assembly metadata is not JSON", path=src, key="assembly") from None
+
+
 MOCAP_COUNTS = ("rejected", "malformed", "missed")
 """The subscriber's counters replay reports."""
+
+
+def arrival_rate(arrived: np.ndarray) -> float:
+    """Poses per second from their arrival times (s, ascending): the intervals between the first and the last over
+    the time they span, (N - 1) / (last - first). Counting the poses of a closed interval over its length instead
+    is 1 / (span x rate) high (two periods of a 250 Hz loop read a 100 Hz stream as 250 Hz). NaN, too few to say:
+    under :data:`RATE_MIN_POSES` poses or spanning under :data:`RATE_MIN_SPAN_S`. A pause in the stream inside
+    the span lowers the rate; at its ends, the mocap age shows it."""
+    if len(arrived) < RATE_MIN_POSES or arrived[-1] - arrived[0] < RATE_MIN_SPAN_S:
+        return math.nan
+    return (len(arrived) - 1) / (arrived[-1] - arrived[0])
 
 
 def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = None, rerun: bool = False,
@@ -389,7 +411,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             if metrics is None:
                 metrics = FlightMetrics(len(d["modules"]))
                 if rerun:
-                    rr = Rerun(json.loads(log.metadata.get("assembly", "null")), _config(log.metadata, src),
+                    rr = Rerun(_assembly(log.metadata, src), _config(log.metadata, src),
                                gains, allocation, src)
             if d["phase"] == Phase.TRACK:
                 track_first = t if track_first is None else track_first
@@ -404,8 +426,8 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             if loop:
                 metrics.add_timing(loop["start_error_s"], loop["compute_s"])
                 max_start_error = max(max_start_error, abs(loop["start_error_s"]))
-            series.add((t, flown["position_m"], d["setpoint"]["position_m"], flown["rpy_deg"],
-                        d["attitude_target"]["rpy_deg"], motors, PHASES.index(d["phase"])))
+            series.add((t, flown["position_m"], d["setpoint"]["position_m"], rotation,
+                        d["attitude_target"]["rpy_deg"], motors, d["phase"]))
             if rr is not None:
                 rr.add(d)
         elif rec.topic == "/log":
@@ -417,6 +439,9 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
                 modules.add(d)
         elif rec.topic == "/mocap/stats":
             mocap = d
+        elif rec.topic == "/flight/start":  # before the first period: where a window from it starts counting
+            mocap_counts.add(d["mocap"], inside=False)
+            estimates.counts.add(d["estimate"], inside=False)
         elif rec.topic == "/loop/timing":
             loop_summary = d
         elif rec.topic == "/flight/summary":
@@ -435,24 +460,24 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
         timeline.append((t_end, end))  # the end state is only in the summary and the events
     duration = (metrics.t_last - metrics.t_first) if metrics.periods > 1 else 0.0
     arrived = np.frombuffer(poses) - offset
-    counts = mocap_counts.result()
+    counts = mocap_counts.result(windowed)
     if counts is None and mocap and not windowed:  # a log before the periods' counts: the stream's, since it began
         counts = {k: mocap.get(k, 0) for k in MOCAP_COUNTS}
     m = ReplayFigures(
         **figures_of(metrics.result()),
         overruns=late.result(loop_summary.get("overruns"), windowed),
         loop_period_error_max_ms=max_start_error * 1e3,
-        mocap_rate_hz=np.count_nonzero((arrived >= metrics.t_first) & (arrived <= metrics.t_last)) / duration
-        if duration > 0 and len(poses) else math.nan,
+        mocap_rate_hz=arrival_rate(arrived[(arrived >= metrics.t_first) & (arrived <= metrics.t_last)]),
         **{f"mocap_{k}": None if counts is None else counts[k] for k in MOCAP_COUNTS},
         duration_s=duration, tracked_s=track_last - track_first if track_first is not None else 0.0,
         phase=summary.get("phase", last_phase), reason=summary.get("reason", "") if summary else NO_END,
-        stalls=sum("loop stalled" in text for _, _, text in events), **modules.result(), **estimates.result())
+        stalls=sum("loop stalled" in text for _, _, text in events), **modules.result(), **estimates.result(windowed))
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
-               np.array([r[3] for r in rows]), np.array([r[4] for r in rows]), np.array([r[5] for r in rows]),
-               np.array([r[6] for r in rows]))
+               np.array([r[3] for r in rows]).reshape(-1, 3, 3), np.array([r[4] for r in rows]),
+               np.array([r[5] for r in rows]), np.array([r[6] for r in rows]))
     meta = {"config": _config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
-            "config_path": log.metadata.get("config_path", "")}
+            "config_path": log.metadata.get("config_path", ""), "assembly": _assembly(log.metadata, src),
+            "started_s": offset}
     return Replay(Path(path), log.complete, log.warnings, meta, m, events, timeline, s,
                   rr.stats.result() if rr else None)

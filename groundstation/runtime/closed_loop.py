@@ -118,10 +118,11 @@ def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float) -> N
 def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBackend, gains: Gains | None = None,
                   control_hz: float = 250.0, allocation: AllocationMode = "clip",
                   volume: FlightVolume | None = None, policy: FailsafePolicy | None = None,
-                  log=None, estimator: EstimatorSettings | None = None) -> FlightRecord:
+                  log=None, estimator: EstimatorSettings | None = None, on_status=None) -> FlightRecord:
     """Fly ``plan`` in lockstep on a connected simulated ``backend``: the flight loop of ``fly`` with the
     simulator's clock, its mocap samples as the pose source, and the same estimator (``estimator``: its settings,
-    matching the simulated mocap's)."""
+    matching the simulated mocap's); ``on_status`` is given each period's
+    :class:`~groundstation.runtime.flight.Status`."""
     model = ControlModel.from_assembly(assembly)
     hover_check(model, plan)
     volume_check(plan, volume or FlightVolume())
@@ -130,7 +131,7 @@ def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBacken
     if not report.ok:
         raise PreflightError("backend preflight failed: " + "; ".join(report.issues))
     flight = Flight(assembly, plan, backend, PhysicsPoseSource(backend), gains=gains, allocation=allocation,
-                    policy=policy, log=log, truth=backend.true_state, record=True,
+                    policy=policy, log=log, truth=backend.true_state, record=True, on_status=on_status,
                     estimator=RigidBodyFilter(estimator or EstimatorSettings(), model.mass))
     backend.advance_to(backend.time + MOCAP_WAIT_S)  # as fly's preflight, the first poses before anything spins
     wall0 = time.perf_counter()

@@ -24,6 +24,7 @@ path ends in one of these.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -90,6 +91,11 @@ class MocapIntegrity:
     """Why the newest rejected sample was rejected."""
     missed: int = 0
     """Samples the source sent that never arrived (gaps in its sequence)."""
+
+    def logged(self) -> dict[str, int]:
+        """The counts the log keeps in every period's record and as preflight passed (``/flight/start``), so that a
+        replayed window has its own."""
+        return {"rejected": self.rejected, "malformed": self.malformed, "missed": self.missed}
 
 
 class PhysicsPoseSource:
@@ -245,6 +251,10 @@ class Status:
     """Loop rate measured over the last second, Hz (None during the first second)."""
     mocap: MocapIntegrity = MocapIntegrity()
     """The pose stream's counters."""
+    planned_s: float | None = None
+    """Flight time the plan takes, take-off to landing, s (None: not said)."""
+    position_error_m: float | None = None
+    """Distance of the position flown from the reference, m (None: not said)."""
 
 
 @dataclass
@@ -598,7 +608,6 @@ class Flight:
             self.metrics.add_timing(timing["start_error_s"], timing["compute_s"])
         if self.log is not None:
             tw = self._log_time(t)
-            src = self.pose.integrity()
             self.log.pose("/state/pose", state.position, state.rotation, tw)
             # One record per period (fewer, larger messages keep the feeder's share of the GIL small); the arrays
             # are fresh each period, so no copies are needed, and the writer process converts them (rotation
@@ -615,9 +624,7 @@ class Flight:
                       "wrench": {"force_n": out.wrench[:3], "torque_nm": out.wrench[3:]},
                       "modules": [{"command_frac_umax": f} for f in fractions],
                       "command_max_frac_umax": worst, "command_min_frac_umax": fractions.min(),
-                      "mocap_age_s": age, "loop": timing,
-                      # the stream's counts so far in every period, so that a replayed window has its own
-                      "mocap": {"rejected": src.rejected, "malformed": src.malformed, "missed": src.missed}}
+                      "mocap_age_s": age, "loop": timing, "mocap": self.pose.integrity().logged()}
             est = self.estimator
             e = est.estimate()
             if e is not None:
@@ -638,8 +645,9 @@ class Flight:
             t_w, n_w = self._rate_window
             if t - t_w >= RATE_WINDOW_S:  # periods actually run, not the configured rate
                 self._rate_hz, self._rate_window = (self.periods - n_w) / (t - t_w), (t, self.periods)
-            self.on_status(Status(t, self.phase, age, worst, battery,
-                                  st.overruns if st is not None else 0, self._rate_hz, self.integrity()))
+            self.on_status(Status(t, self.phase, age, worst, battery, st.overruns if st is not None else 0,
+                                  self._rate_hz, self.integrity(), self.plan.duration,
+                                  math.dist(flown.position, sp.position)))
 
     # -- run --------------------------------------------------------------------------------------------------------
     def run(self, clock: Clock, rate_hz: float, realtime: bool = False) -> LoopStats:

@@ -492,7 +492,12 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
     plan = FlightPlan(tuple(float(v) for v in s.position), p.track, takeoff_s=t.takeoff_s, settle_s=t.settle_s,
                       landing_s=t.landing_s)
     volume_check(plan, p.volume)
-    log.event("info", "preflight passed", to_log(time.monotonic()))
+    now = to_log(time.monotonic())
+    log.event("info", "preflight passed", now)
+    # The counts so far are the preflight's: every period's record holds them too, and a replayed window from the
+    # first period subtracts these.
+    log.record("/flight/start", {"mocap": pose.integrity().logged(),
+                                 "estimate": {"rejected": est.rejected, "late": est.late}}, now)
     return plan
 
 

@@ -9,6 +9,7 @@ from groundstation.assembly.assembly_file import (
     LEGACY_FIGURES,
     assembly_record,
     checked_record,
+    flown_assembly,
     load_assembly,
     save_assembly,
 )
@@ -152,3 +153,16 @@ def test_a_design_written_under_the_old_clearance_rule_is_refused():
     assert err.value.key == "feasible" and "capsule axes 0.189999998 m apart, under 2 r = 0.19 m" in str(err.value)
     fig1, _ = load_assembly(ROOT / "configs/assemblies/paper_fig1_n12.json")
     assert fig1.n == 12
+
+
+def test_a_flown_assembly_is_its_geometry_without_the_design_verdict():
+    """What a flight log's record rebuilds (``replay --rerun``: a log is history): the legacy Fig. 1 design,
+    refused as a file, gives its geometry; that geometry is checked as on load (a wrong mass is refused naming the
+    key)."""
+    rec = json.loads((HERE / "data/legacy_paper_fig1_n12.json").read_text())
+    assembly = flown_assembly(rec, "log")
+    assert assembly.n == 12 and np.allclose(np.degrees(assembly.alpha), rec["angles_deg"])
+    rec["mass_kg"] *= 2
+    with pytest.raises(ConfigError) as err:
+        flown_assembly(rec, "log")
+    assert err.value.key == "mass_kg"

@@ -43,3 +43,16 @@ def test_float_list():
     for bad, why in (("20,nan", "not a finite number"), ("a,b", "not a valid float"), ("100", "not in the range")):
         with pytest.raises(click.BadParameter, match=why):
             tilts.convert(bad, None, None)
+
+
+def test_the_status_line_says_the_flight_time_out_of_the_plans_and_the_tracking_error():
+    from rich.text import Text
+
+    from groundstation.cli.common import status_text
+    from groundstation.runtime.flight import Status
+
+    s = Status(t=12.345, phase="track", mocap_age=0.0041, worst_motor=0.456, battery_v=None, overruns=0,
+               rate_hz=250.0, planned_s=25.0, position_error_m=0.00312)
+    plain = Text.from_markup(status_text(s, 120, "   keys")).plain
+    assert plain == "    track t=  12.3 / 25.0 s  error   3.1 mm  250 Hz  mocap  4.1 ms  motor  46%  late 0   keys"
+    assert Text.from_markup(status_text(s, 60, "   keys")).plain == plain[:60]  # cut, the hint left out

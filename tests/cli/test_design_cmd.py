@@ -23,8 +23,34 @@ def test_toy_design_outputs(cli, tmp_path):
     assert assembly.n == 2
     rows = list(csv.DictReader(table.open()))
     assert [(r["n"], r["feasible"]) for r in rows] == [("1", "False"), ("2", "True")]
+    assert all(r["least_searched"] == "False" for r in rows)  # the least-bound search only when asked for
     for name in ("fig1_assembly.png", "fig5_costs.png", "fig6_polytope.png"):
         assert imread(figs / name).shape[0] > 300
+    assert not (figs / "fig5_cost_vs_u_max.png").exists()
+
+
+def test_toy_design_prints_the_least_bound(cli, tmp_path):
+    table, figs = tmp_path / "t.json", tmp_path / "figs"
+    code, out, _ = cli("design", TOY, "--max-modules", "2", "--table", str(table), "--least-u-max", "--figures",
+                       str(figs))
+    assert code == 0
+    rows = json.loads(table.read_text())
+    v = rows[1]["least_u_max"]
+    # Never for the single module (one thrust axis: the proof, and JSON's null for inf), below u_max for the V.
+    assert rows[0]["least_u_max"] is None and rows[0]["never_feasible"].startswith("every force")
+    assert 0 < v < 4e6 and not rows[1]["never_feasible"]
+    assert imread(figs / "fig5_cost_vs_u_max.png").shape[0] > 300
+    header = next(line for line in out.splitlines() if "code" in line)
+    assert "least u_max" in header  # the whole header: not cut to a pipe's 80 columns
+    assert f"{v:.5g} ({100 * (v / 4e6 - 1):+.2f}%)" in out
+
+
+def test_least_bound_cell():
+    from groundstation.cli.design_cmd import _least_bound
+
+    assert _least_bound({"least_u_max": float("inf"), "never_feasible": "one plane"}, 4e6) == "never"
+    assert _least_bound({"least_u_max": float("inf"), "never_feasible": ""}, 4e6) == "none found"
+    assert _least_bound({"least_u_max": 4.0568e6, "never_feasible": ""}, 4e6) == "4.0568e+06 (+1.42%)"
 
 
 def test_infeasible_within_max(cli):

@@ -44,8 +44,9 @@ def test_status_line_fits_the_terminal():
     s = Status(t=12.345, phase="track", mocap_age=0.0041, worst_motor=0.456, battery_v=3.95, overruns=2,
                rate_hz=499.0)
     for width, hint in ((80, False), (130, True)):
-        plain = Text.from_markup(status_text(s, width)).plain
+        plain = Text.from_markup(status_text(s, width, KEYS_HINT)).plain
         assert len(plain) <= width and (KEYS_HINT in plain) is hint
         assert "track t=  12.3 s  499 Hz  mocap  4.1 ms  motor  46%  battery 3.95 V  late 2" in plain
     assert " --- Hz " in Text.from_markup(status_text(Status(0.5, "takeoff", 0.004, 0.4, None, 0), 80)).plain
-    assert len(Text.from_markup(status_text(s, 40)).plain) == 40  # a very narrow terminal: cut, never wrapped
+    # a very narrow terminal: cut, never wrapped
+    assert len(Text.from_markup(status_text(s, 40, KEYS_HINT)).plain) == 40

@@ -1,4 +1,12 @@
+import fcntl
 import json
+import os
+import pty
+import re
+import struct
+import subprocess
+import sys
+import termios
 from pathlib import Path
 
 import pytest
@@ -57,3 +65,45 @@ def test_invalid_assembly_file(cli, tmp_path, key, value):
     code, out, err = cli("simulate", str(bad))
     assert code == 2 and err.startswith(f"groundstation: error: {bad}: {key}: says {value}")
     assert len(err.strip().splitlines()) == 1, err
+
+
+def test_the_table_has_replays_labels(cli):
+    code, out, err = cli("simulate", TOY, "--trajectory", "hover", "--duration", "1")
+    assert code == 0, err
+    assert "Simulated hover" in out and "(n = 2, 5 DOF)" in out
+    for label in ("position RMSE, tracking (m)", "position RMSE x, y, z, tracking (m)",
+                  "max attitude error, airborne (deg)", "saturated (airborne, per module)", "end"):
+        assert label in out
+    assert "pos_rmse_m" not in out and "{" not in out and "(0." not in out  # no raw keys, dicts or tuples
+    numbers = re.findall(r"\d+\.\d+", out)
+    assert numbers and all(len(n.replace(".", "").lstrip("0")) <= 4 for n in numbers), out  # 4 significant digits
+
+
+def test_a_status_line_on_a_terminal():
+    """On a terminal, ``simulate`` shows fly's status line (flight time out of the plan's, the tracking error)
+    while it flies, then clears it: the table starts on a line of its own."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 150, 0, 0))
+    proc = subprocess.Popen([sys.executable, "-m", "groundstation", "simulate", TOY, "--trajectory", "hover",
+                             "--duration", "1"], stdin=slave, stdout=slave, stderr=slave, cwd=ROOT,
+                            env=os.environ | {"TERM": "xterm", "COLUMNS": "150"})
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:  # the child closed the terminal
+            break
+        if not chunk:
+            break
+        chunks.append(chunk)
+    os.close(master)
+    assert proc.wait(timeout=60) == 0
+    raw = b"".join(chunks).decode()
+    text = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", raw)  # without colours and cursor moves
+    assert text.startswith("preflight\r")
+    statuses = re.findall(r"(\w+) t=\s*([\d.]+) / ([\d.]+) s  error\s+([\d.]+) mm", text)
+    assert len(statuses) >= 3 and {s[0] for s in statuses} >= {"takeoff"}
+    assert all(float(s[2]) == float(statuses[0][2]) > float(s[1]) for s in statuses)  # t out of the plan's total
+    # the status line is erased (ESC[2K) before the table: nothing is left on the line the table starts on
+    assert re.search(r"\x1b\[2K(\x1b\[3m)? *Simulated hover", raw)

@@ -4,7 +4,7 @@ import pytest
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
-from groundstation.control.geometric import Gains, adapt_attitude, control
+from groundstation.control.geometric import Gains, adapt_attitude, control, free_angles
 from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import euler_zyx, roll_pitch_yaw
@@ -20,6 +20,22 @@ def test_actuation_classes():
     np.testing.assert_allclose(np.abs(ControlModel.from_assembly(V).null_force[0]), [1, 0, 0], atol=1e-9)
     assert ControlModel.from_assembly(FLAT).actuation == "force-deficient-2"
     assert ControlModel.from_assembly(FULL).actuation == "full"
+
+
+def test_the_angles_each_assembly_leaves_to_the_force():
+    """What adapt_attitude frees: the V's pitch (its roll and yaw held), a flat assembly's roll and pitch, none of a
+    fully actuated one's; checked on what the adaptation does with a sideways force."""
+    assert free_angles(ControlModel.from_assembly(V)) == ("pitch",)
+    assert free_angles(ControlModel.from_assembly(FLAT)) == ("roll", "pitch")
+    assert free_angles(ControlModel.from_assembly(FULL)) == ()
+    target = euler_zyx(np.radians(-5.0), 0.0, 0.3)
+    for asm in (V, FLAT, FULL):
+        model = ControlModel.from_assembly(asm)
+        moved = np.abs(np.subtract(roll_pitch_yaw(adapt_attitude(target, np.array([1.5, -1.0, 5.0]), model)),
+                                   roll_pitch_yaw(target))) > 1e-6
+        moved = {name for name, m in zip(("roll", "pitch", "yaw"), moved, strict=True) if m}
+        tilted = {"yaw"} if asm is FLAT else set()  # a flat assembly keeps its heading, not its ZYX yaw
+        assert moved == set(free_angles(model)) | tilted
 
 
 @pytest.mark.parametrize("asm", [V, FULL, FLAT], ids=["V", "full", "flat"])

@@ -2,12 +2,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.optimize import linprog
 
 from groundstation.assembly import kinematics as kin
 from groundstation.assembly.assembly_file import load_assembly, save_assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
-from groundstation.design.optimize import SolverOptions, optimize
+from groundstation.design.optimize import SolverOptions, least_bound, optimize, with_input_bound
 from groundstation.design.task import load_task
 from tests.recheck import wrenches_from_rotors
 
@@ -101,3 +102,46 @@ def test_start_statistics_in_the_record():
     # Boender-Rinnooy Kan: one optimum from six successful starts, w (N - 1) / (N - w - 2) - w = 5/3 - 1.
     assert rec["expected_unseen_optima"] == pytest.approx(5 / 3 - 1)
     assert rec["spread"] is None and rec["optima"] == [pytest.approx(d.cost)]
+
+
+def least_max_input_of_symmetric_v(wrenches):
+    """Independent of the solver: the least largest input that meets every wrench over the symmetric V family,
+    an LP per tilt (minimise t subject to A u_k = b_k, 0 <= u_k <= t), 0.05 deg steps around the optimum."""
+    k = len(wrenches)
+    best = np.inf
+    for tilt in np.radians(np.arange(25.0, 40.0, 0.05)):
+        pos, rot = kin.module_frames(Topology.from_code("oS"), np.array([tilt, 0.0, -2 * tilt]), P.l_c)
+        a = kin.allocation_matrix(pos, rot, P)
+        m = a.shape[1]
+        # Variables: u_1 .. u_k (m each), then t; inputs in units of u_max keep HiGHS's tolerances meaningful.
+        a_eq = np.hstack([np.kron(np.eye(k), a * P.u_max), np.zeros((6 * k, 1))])
+        a_ub = np.hstack([np.eye(k * m), -np.ones((k * m, 1))])
+        res = linprog(np.r_[np.zeros(k * m), 1.0], A_ub=a_ub, b_ub=np.zeros(k * m), A_eq=a_eq,
+                      b_eq=wrenches.ravel(), bounds=(0, None), method="highs")
+        if res.status == 0:
+            best = min(best, res.x[-1] * P.u_max)
+    return best
+
+
+def test_least_bound_of_the_toy_v_matches_an_lp_scan():
+    b, w = toy_wrenches()
+    d = least_bound(Topology.from_code("oS"), P, b, w)
+    assert d.feasible and d.objective == "bound" and d.certificate is None
+    assert d.params.u_max == pytest.approx(least_max_input_of_symmetric_v(b), rel=1e-5)
+    # Verified at its own bound, which is its largest input; everything but the bound is the module's.
+    assert d.params.u_max == d.u.max() and d.params == with_input_bound(P, d.u.max())
+    assert d.verification.feasible and d.verification.max_bound_violation == 0.0
+    assert d.verification.min_capsule_distance >= 2 * P.r
+    assert d.record()["module_params"]["u_max"] == d.params.u_max
+
+
+def test_least_bound_never_for_a_force_outside_the_thrust_axes_span():
+    """One module pushes along its axis only: a sideways push while hovering needs two directions, at any bound.
+    A thrust-capacity shortfall at the nominal bound is no such proof: the least bound is then above it."""
+    b = np.array([[1.0, 0, 2.4, 0, 0, 0], [0.0, 0, 2.4, 0, 0, 0]])
+    never = least_bound(Topology.single(), P, b)
+    assert not never.feasible and never.certificate.kind == "force-span" and never.starts == ()
+    heavy = np.array([[0.0, 0.0, 1.5 * 4 * P.c_f * P.u_max, 0, 0, 0]])  # 1.5 times one module's full thrust
+    assert optimize(Topology.single(), P, heavy).certificate.kind == "thrust-capacity"
+    d = least_bound(Topology.single(), P, heavy)
+    assert d.feasible and d.params.u_max == pytest.approx(1.5 * P.u_max, rel=1e-6)

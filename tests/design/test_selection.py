@@ -7,7 +7,7 @@ import pytest
 
 from groundstation.assembly.module import ModuleParams
 from groundstation.design import selection
-from groundstation.design.selection import read_results, select
+from groundstation.design.selection import CandidateResult, bound_grid, cost_against_bound, read_results, select
 from groundstation.design.task import load_task
 from groundstation.errors import ConfigError
 
@@ -68,7 +68,7 @@ def test_infeasible_up_to_max_is_a_result():
 def toy_results(tmp_path_factory) -> list[dict]:
     """The results file of the toy task up to two modules: line 1 the single module (infeasible), line 2 oE."""
     path = tmp_path_factory.mktemp("toy") / "r.jsonl"
-    select(TOY, P, 2, results_path=path)
+    select(TOY, P, 2, results_path=path, least=True)
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
@@ -90,7 +90,7 @@ def test_a_hand_edited_record_in_the_results_file_is_named(tmp_path, toy_results
         e["record"]["angles_deg"] = e["record"]["angles_deg"][:1]  # one angle where there are two or three
     path = _write(tmp_path / "r.jsonl", entries)
     with pytest.raises(ConfigError) as err:
-        select(TOY, P, 2, results_path=path)
+        select(TOY, P, 2, results_path=path, least=True)
     assert err.value.path == f"{path}:1" and err.value.key == "angles_deg"
 
 
@@ -133,17 +133,17 @@ def test_an_edited_results_line_is_refused_never_reported_best(tmp_path, toy_res
     path = _write(tmp_path / "r.jsonl", entries)
     reported = []
     with pytest.raises(ConfigError) as err:
-        select(TOY, P, 2, results_path=path, on_result=reported.append)
+        select(TOY, P, 2, results_path=path, on_result=reported.append, least=True)
     assert err.value.path == f"{path}:{line}" and err.value.key == key and fragment in str(err.value)
     assert all(r.feasible is False for r in reported)  # the edited row never reached the caller as feasible
 
 
 def test_rows_of_another_solver_version_are_solved_again(tmp_path, toy_results, monkeypatch):
     path = _write(tmp_path / "r.jsonl", toy_results)
-    again = select(TOY, P, 2, results_path=path)
+    again = select(TOY, P, 2, results_path=path, least=True)
     assert len(path.read_text().splitlines()) == 2  # same code: reused (and re-verified)
     monkeypatch.setattr(selection, "solver_version", lambda: "a newer solver")
-    newer = select(TOY, P, 2, results_path=path)
+    newer = select(TOY, P, 2, results_path=path, least=True)
     rows = read_results(path)
     assert len(path.read_text().splitlines()) == 4 and len(rows) == 4  # both candidates solved again, appended
     assert newer.best.row.key != again.best.row.key
@@ -154,3 +154,65 @@ def test_the_solver_version_hashes_the_design_and_assembly_sources():
     version = selection.solver_version()
     assert len(version) == 16 and int(version, 16) >= 0
     assert version == selection.solver_version()
+
+
+def test_results_lines_carry_the_least_bound_design(toy_results):
+    single, v = toy_results
+    assert single["row"]["never_feasible"] and single["row"]["least_u_max"] == float("inf")
+    assert single["least_u_max_record"]["certificate"]["kind"] == "force-span"
+    least = v["least_u_max_record"]
+    assert v["row"]["least_u_max"] == least["module_params"]["u_max"] == np.max(least["u"]) < P.u_max
+    assert least["feasible"] and least["solver"]["objective"] == "bound"
+
+
+def _lower_bound(entries):
+    entries[1]["row"]["least_u_max"] *= 0.99
+
+
+def _lower_bound_with_its_record(entries):
+    _lower_bound(entries)
+    entries[1]["least_u_max_record"]["module_params"]["u_max"] *= 0.99
+
+
+def _bound_for_the_single_module(entries):
+    entries[0]["row"].update(least_u_max=1e6, never_feasible="")
+
+
+def _hidden_proof(entries):
+    entries[0]["row"]["never_feasible"] = ""
+
+
+def _cheaper_at_the_bound(entries):
+    entries[1]["row"]["least_u_max_cost"] /= 2
+
+
+@pytest.mark.parametrize("edit, src, key, fragment", [
+    (_lower_bound, "2", "row.least_u_max", "but its record, re-verified, gives"),
+    (_lower_bound_with_its_record, "2: least_u_max_record", "feasible",
+     "says True, but the design recomputed from the angles and inputs is infeasible: inputs"),
+    (_bound_for_the_single_module, "1", "row.least_u_max", "says 1000000.0, but its record, re-verified, gives inf"),
+    (_hidden_proof, "1", "row.never_feasible", 'says \'\', but its record, re-verified, gives "every force'),
+    (_cheaper_at_the_bound, "2", "row.least_u_max_cost", "but its record, re-verified, gives"),
+])
+def test_an_edited_least_bound_is_refused(tmp_path, toy_results, edit, src, key, fragment):
+    entries = copy.deepcopy(toy_results)
+    edit(entries)
+    path = _write(tmp_path / "r.jsonl", entries)
+    with pytest.raises(ConfigError) as err:
+        select(TOY, P, 2, results_path=path, least=True)
+    assert err.value.path == f"{path}:{src}" and err.value.key == key and fragment in str(err.value)
+
+
+def test_cost_against_bound_from_each_least_bound(toy_results):
+    rows = [CandidateResult(**e["row"]) for e in toy_results]
+    single, v = rows
+    np.testing.assert_allclose(bound_grid(rows, P.u_max, 3), [v.least_u_max, (v.least_u_max + 4.8e6) / 2, 4.8e6])
+    progress = []
+    never, curve = cost_against_bound(TOY, P, rows, np.array([2.5e6, 5e6]),
+                                      on_solve=lambda done, total: progress.append((done, total)))
+    assert progress == [(1, 2), (2, 2)]  # the single module is never feasible: nothing to solve
+    assert never.u_max == () and never.never_feasible == single.never_feasible
+    # The least-bound design and the sweep's own design at u_max are points without a solve.
+    assert curve.u_max == (v.least_u_max, 2.5e6, P.u_max, 5e6)
+    assert curve.cost[0] == v.least_u_max_cost and curve.cost[2] <= v.cost
+    assert list(curve.cost) == sorted(curve.cost, reverse=True)  # the least found at each bound or below

@@ -231,7 +231,7 @@ def test_every_schema_the_writer_emits_is_one_foxglove_reads(topic):
 
 def test_the_logs_json_channels_carry_schemas_foxglove_reads(log_channels):
     json_channels = {t: c for t, c in log_channels.items() if c[0] == "json"}
-    assert set(SCHEMAS) <= set(json_channels)  # a hover writes all five
+    assert set(SCHEMAS) <= set(json_channels)  # a hover writes all six
     for topic, (_, schema_encoding, name, data) in json_channels.items():
         assert schema_encoding == "jsonschema", topic
         parse_json_schema(json.loads(data), name)

@@ -28,16 +28,6 @@ from tests.runtime.test_fly import config_with, sitl_config
 FIGURES = [f.name for f in fields(FlightFigures)]
 
 
-@pytest.fixture(scope="module")
-def sim_flight(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("replay")
-    cfg = config_with(tmp, endpoint="tcp/127.0.0.1:7485", **{"roll_deg = 0.0": "roll_deg = -5.0"})
-    log = tmp / "roll-5.mcap"
-    res = fly(cfg, duration=5.0, log_path=log)
-    assert res.phase == "done"
-    return res, log
-
-
 def same(a, b) -> bool:
     if isinstance(a, tuple):
         return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
@@ -123,6 +113,29 @@ def test_rerun_matches_and_finds_gain_changes(sim_flight, tmp_path):
     assert stiffer.max_motor_diff > 0.01 and stiffer.max_torque_diff_nm > 1e-3
 
 
+def test_rerun_of_a_log_of_a_design_shipped_before_the_exact_rules(sim_flight, tmp_path):
+    """A log is history: one whose assembly is the Fig. 1 design shipped before 2026-12-02 (2e-9 m inside 2 r,
+    refused as an assembly file today) reruns on it, its design not judged again (the suite's flight, rewritten:
+    that assembly's record and twelve modules' commands); a malformed record is still refused naming the key."""
+    _, log = sim_flight
+    legacy = json.loads((ROOT / "tests/assembly/data/legacy_paper_fig1_n12.json").read_text())
+
+    def twelve(topic, d):
+        if topic == "/control":
+            d["modules"] = d["modules"][:1] * legacy["n"]
+        return d
+
+    fig1 = tmp_path / "fig1.mcap"
+    copy_log(log, fig1, record=twelve, metadata={"assembly": json.dumps(legacy)})
+    rerun = analyse(fig1, rerun=True).rerun
+    assert rerun.periods > 1000 and math.isfinite(rerun.max_motor_diff)
+    del legacy["angles_deg"]
+    copy_log(log, fig1, record=twelve, metadata={"assembly": json.dumps(legacy)})
+    with pytest.raises(ConfigError) as malformed:
+        analyse(fig1, rerun=True)
+    assert malformed.value.key == "angles_deg" and str(malformed.value).startswith(f"{fig1}: angles_deg: missing")
+
+
 def test_window(sim_flight, tmp_path):
     _, log = sim_flight
     r = analyse(log, t_from=5.0, t_to=7.0)
@@ -134,9 +147,10 @@ def test_window(sim_flight, tmp_path):
     assert r.metrics.periods == inside and 0 < inside <= 501
 
 
-def copy_log(src, dst, drop: set[str] = frozenset(), record=None) -> None:
+def copy_log(src, dst, drop: set[str] = frozenset(), record=None, metadata: dict[str, str] | None = None) -> None:
     """The log minus the channels ``drop`` and without the summary (as if written by an older writer), each JSON
-    record through ``record(topic, record)`` when given."""
+    record through ``record(topic, record)`` when given, and the metadata values of ``metadata`` in place of the
+    log's."""
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
 
@@ -151,7 +165,8 @@ def copy_log(src, dst, drop: set[str] = frozenset(), record=None) -> None:
                 channels[rec.id] = (w.register_channel(rec.topic, rec.message_encoding, schemas[rec.schema_id]),
                                     rec.topic, rec.message_encoding == "json")
             elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, dict(rec.metadata))
+                w.add_metadata(rec.name, {"value": metadata[rec.name]} if rec.name in (metadata or {})
+                               else dict(rec.metadata))
             elif isinstance(rec, Message) and rec.channel_id in channels:
                 cid, topic, is_json = channels[rec.channel_id]
                 data = json.dumps(record(topic, json.loads(rec.data))).encode() if is_json and record else rec.data
@@ -171,9 +186,9 @@ def test_log_without_telemetry_channels(sim_flight, tmp_path):
 
 
 RATE_TOLERANCE = 0.02
-"""A simulated stream's measured rate is its configured one within 2 %: over the seconds of a window or a flight a
-regular stream's count is within one pose of rate times span (0.3 % of 3 s at 100 Hz); the preflight that once
-stepped the physics 20 ms every ~10 ms turn put the whole stream 4 % high."""
+"""A simulated stream's measured rate is its configured one within 2 %: a pose is timed when a period polls it, so
+over the seconds of a window or a flight the span of its arrivals is off by a period at most (0.3 % of 3 s at
+250 Hz); the preflight that once stepped the physics 20 ms every ~10 ms turn put the whole stream 4 % high."""
 
 
 def test_the_simulated_mocap_keeps_its_rate(sim_flight):
@@ -190,26 +205,37 @@ def test_the_simulated_mocap_keeps_its_rate(sim_flight):
 
 LATE_EVERY, LATE_AT = 7, 3
 REJECTED_EVERY, REJECTED_AT = 11, 5
+PREFLIGHT_REJECTED, PREFLIGHT_ESTIMATOR_REJECTED = 5, 3
+"""Poses the subscriber and the estimator rejected in preflight, planted (a dry run's preflight once rejected 5)."""
 
 
 def _with_known_counts(log, out) -> np.ndarray:
     """``log`` copied with counts the test knows: period k (the k-th record with a state) ran late when
     ``k % LATE_EVERY == LATE_AT`` (a record holds the loop's count before its period ran, the loop's summary the
-    total), and a pose was rejected in it when ``k % REJECTED_EVERY == REJECTED_AT`` (a record's count includes its
-    period's). Returns the periods' flight times, s."""
-    times = []
+    total), and a pose was rejected in it, by the subscriber and by the estimator, when ``k % REJECTED_EVERY ==
+    REJECTED_AT`` (a record's count includes its period's), after the preflight's ``PREFLIGHT_REJECTED`` and
+    ``PREFLIGHT_ESTIMATOR_REJECTED`` (``/flight/start``, and every period's count since the stream began). Returns
+    the periods' flight times, s."""
+    times, started = [], []
 
     def record(topic, d):
         if topic == "/control" and "state" in d:
             k = len(times)
             times.append(d["t_s"])
             d["loop"]["overruns"] = (k + LATE_EVERY - LATE_AT - 1) // LATE_EVERY
-            d["mocap"]["rejected"] = (k + REJECTED_EVERY - REJECTED_AT) // REJECTED_EVERY
+            rejected = (k + REJECTED_EVERY - REJECTED_AT) // REJECTED_EVERY
+            d["mocap"]["rejected"] = PREFLIGHT_REJECTED + rejected
+            d["estimate"]["rejected"] = PREFLIGHT_ESTIMATOR_REJECTED + rejected
         elif topic == "/loop/timing":
             d["overruns"] = (len(times) + LATE_EVERY - LATE_AT - 1) // LATE_EVERY
+        elif topic == "/flight/start":
+            started.append(len(times))
+            d["mocap"]["rejected"] = PREFLIGHT_REJECTED
+            d["estimate"]["rejected"] = PREFLIGHT_ESTIMATOR_REJECTED
         return d
 
     copy_log(log, out, record=record)
+    assert started == [0]  # the flight logged its counts as preflight passed, once, before its first period
     return np.array(times)
 
 
@@ -217,9 +243,10 @@ def _with_known_counts(log, out) -> np.ndarray:
 def test_a_window_recomputed_from_its_csv(sim_flight, tmp_path, t_from, t_to):
     """Every figure of a window equals the same figure computed with numpy from the CSV rows of that window (not
     the analysis code): periods, flight time and tracking time, position RMSE over the tracking periods, the mocap
-    rate from the poses that arrived, the late periods and the events; the late periods and rejected poses also
-    equal the counts planted in the log. The first window starts in the take-off and ends in the tracking; the
-    second runs from the tracking to past the end."""
+    rate from the arrival times of the poses that arrived over the periods (and, within the polling's 1 %, from
+    their capture stamps, the publisher's clock), the late periods and the events; the late periods and rejected
+    poses also equal the counts planted in the log. The first window starts in the take-off and ends in the
+    tracking; the second runs from the tracking to past the end."""
     _, log = sim_flight
     counted = tmp_path / "counted.mcap"
     times = _with_known_counts(log, counted)
@@ -237,14 +264,16 @@ def test_a_window_recomputed_from_its_csv(sim_flight, tmp_path, t_from, t_to):
     error = np.linalg.norm(xyz[track, :3] - xyz[track, 3:], axis=1)
     assert r.metrics.pos_rmse_m == pytest.approx(np.sqrt(np.mean(error**2)), rel=1e-9)
     with open(mocap) as fh:
-        arrived = np.array([float(row["t_s"]) for row in csv.DictReader(fh)])
-    rate = np.count_nonzero((arrived >= t[0]) & (arrived <= t[-1])) / (t[-1] - t[0])
-    assert r.metrics.mocap_rate_hz == pytest.approx(rate, rel=1e-12)
-    assert rate == pytest.approx(r.metadata["config"]["mocap"]["rate_hz"], rel=RATE_TOLERANCE)
+        poses = np.array([[float(row["t_s"]), float(row["capture_t_s"])] for row in csv.DictReader(fh)])
+    arrived, captured = poses[(poses[:, 0] >= t[0]) & (poses[:, 0] <= t[-1])].T
+    assert r.metrics.mocap_rate_hz == pytest.approx(1.0 / np.mean(np.diff(arrived)), rel=1e-9)  # mean interval
+    assert r.metrics.mocap_rate_hz == pytest.approx(1.0 / np.mean(np.diff(np.sort(captured))), rel=0.01)
+    assert r.metrics.mocap_rate_hz == pytest.approx(r.metadata["config"]["mocap"]["rate_hz"], rel=RATE_TOLERANCE)
     k = np.flatnonzero((times >= t_from) & (times <= hi))  # the window's periods, by their index in the flight
     late = np.array([int(row["late"]) for row in rows])
     assert r.metrics.overruns == late.sum() == np.count_nonzero(k % LATE_EVERY == LATE_AT) > 0
-    assert r.metrics.mocap_rejected == np.count_nonzero(k % REJECTED_EVERY == REJECTED_AT) > 0
+    planted = np.count_nonzero(k % REJECTED_EVERY == REJECTED_AT)
+    assert r.metrics.mocap_rejected == r.metrics.estimator_rejected == planted > 0
     with open(events) as fh:
         logged = list(csv.DictReader(fh))
     assert [(float(e["t_s"]), e["level"], e["text"]) for e in logged] == r.events and logged
@@ -253,6 +282,55 @@ def test_a_window_recomputed_from_its_csv(sim_flight, tmp_path, t_from, t_to):
     phases = [row["phase"] for row in rows]
     changes = [p for i, p in enumerate(phases) if i == 0 or p != phases[i - 1]]
     assert [p for _, p in r.timeline] == changes + (["done"] if t_to is None else [])  # the end: a motors-off record
+
+
+def test_a_window_from_the_first_period_leaves_the_preflight_out(sim_flight, tmp_path):
+    """The first period's record counts the preflight's rejections too (5 by the subscriber, 3 by the estimator,
+    planted): a window from the first period counts from ``/flight/start`` (the counts as preflight passed), so
+    its first three periods rejected nothing (it said 5 and 3); unwindowed, the counts run from the stream's start,
+    like the events. A log written before ``/flight/start`` cannot tell a window from its first period which
+    counts are the window's: null there, and the same figures as before elsewhere."""
+    _, log = sim_flight
+    counted = tmp_path / "counted.mcap"
+    times = _with_known_counts(log, counted)
+    planted = np.count_nonzero(np.arange(len(times)) % REJECTED_EVERY == REJECTED_AT)
+    first = analyse(counted, None, times[2]).metrics
+    assert first.periods == 3 and (first.mocap_rejected, first.estimator_rejected) == (0, 0)
+    assert None not in (first.mocap_malformed, first.mocap_missed, first.estimator_late)
+    flight = analyse(counted, times[0], None).metrics
+    assert (flight.mocap_rejected, flight.estimator_rejected) == (planted, planted)
+    whole = analyse(counted).metrics
+    assert whole.mocap_rejected == PREFLIGHT_REJECTED + planted
+    assert whole.estimator_rejected == PREFLIGHT_ESTIMATOR_REJECTED + planted
+    older = tmp_path / "older.mcap"
+    copy_log(counted, older, {"/flight/start"})
+    first = analyse(older, None, times[2]).metrics
+    assert {first.mocap_rejected, first.mocap_malformed, first.mocap_missed, first.estimator_rejected,
+            first.estimator_late} == {None}
+    later, later_older = analyse(counted, 1.0, 4.0).metrics, analyse(older, 1.0, 4.0).metrics
+    assert (later_older.mocap_rejected, later_older.estimator_rejected) == (
+        later.mocap_rejected, later.estimator_rejected) != (None, None)
+    assert analyse(older).metrics.mocap_rejected == whole.mocap_rejected
+
+
+def test_the_mocap_rate_of_a_short_window(sim_flight, tmp_path):
+    """Three periods (8 ms) hold a pose or two of a 100 Hz stream: their count over the periods' span read 125 or
+    250 Hz. Under 0.5 s of arrivals (``RATE_MIN_SPAN_S``) the rate is NaN, too short to say; from there on it is
+    the stream's, from the intervals between the arrivals."""
+    _, log = sim_flight
+    for t_to in (6.01, 6.3):
+        r = analyse(log, 6.0, t_to)
+        assert r.metrics.periods > 0 and math.isnan(r.metrics.mocap_rate_hz), t_to
+    r = analyse(log, 6.0, 6.7)
+    control, mocap, _ = export_csv(log, tmp_path, 6.0, 6.7)
+    with open(control) as fh:
+        t = np.array([float(row["t_s"]) for row in csv.DictReader(fh)])
+    with open(mocap) as fh:
+        arrived = np.array([float(row["t_s"]) for row in csv.DictReader(fh)])
+    arrived = arrived[(arrived >= t[0]) & (arrived <= t[-1])]
+    assert r.metrics.mocap_rate_hz == pytest.approx(1.0 / np.mean(np.diff(arrived)), rel=1e-9)
+    assert r.metrics.mocap_rate_hz == pytest.approx(r.metadata["config"]["mocap"]["rate_hz"], rel=RATE_TOLERANCE)
+
 
 def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
     """Both processes killed: the file ends mid-chunk. The stream reader reads up to the cut; `log recover`
