@@ -3,19 +3,18 @@
 
 ``firmware/crazyflie_sitl`` builds crazyflie-firmware (a user's checkout, 2026.08) natively with the motor app; each
 process serves CRTP on ``port + i`` exactly as a simulated module does, so the ground station flies it with the same
-Crazyflie backend and cflib. Per physics step (1 kHz, the firmware's IMU rate) each process gets one sensor datagram
-(``firmware/crazyflie_sitl/WIRE.md``): the specific force and body rate in its module's own frame (rotated by its
-mount in the assembly, so the tumble check behaves as on hardware), the battery, and its motors' speeds; it answers
-with the motor ratios its power distribution set, which become rotor thrust through the platform's motor model (the
-assembly's ``motor_command``). A process that dies is a lost module (its link goes silent, its rotors stop); one
-that exits for a reboot (cflib's ``PowerSwitch``, exit status 3) is started again with its parameter file, so stored
-parameters survive as on hardware.
+Crazyflie backend and cflib. Each process gets sensor datagrams at the firmware's IMU rate, 1 kHz (two per physics
+step at :data:`FIRMWARE_PHYSICS_HZ`; ``firmware/crazyflie_sitl/WIRE.md``): the specific force and body rate in its
+module's own frame (rotated by its mount in the assembly, so the tumble check behaves as on hardware), the battery,
+and its motors' speeds; it answers with the motor ratios its power distribution set, which become rotor thrust
+through the platform's motor model (the assembly's ``motor_command``). A process that dies is a lost module (its
+link goes silent, its rotors stop); one that exits for a reboot (cflib's ``PowerSwitch``, exit status 3) is started
+again with its parameter file, so stored parameters survive as on hardware.
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import socket
 import struct
@@ -32,16 +31,23 @@ SENSOR = struct.Struct("<4sId3f3ff4H")
 MOTOR = struct.Struct("<4sII4HB3x")
 INFO_CAN_FLY, INFO_LOCKED = 0x08, 0x40
 """Bits of ``supervisorGetInfoBitfield`` in the motor datagram."""
-FIRMWARE_PHYSICS_HZ = 1000.0
-"""The firmware's IMU rate: one sensor datagram per physics step releases one stabilizer step."""
+FIRMWARE_IMU_HZ = 1000
+"""The firmware's IMU rate: each sensor datagram releases one stabilizer step, so they come at this rate."""
+FIRMWARE_PHYSICS_HZ = 500.0
+"""Physics rate under real firmware, Hz: each step's IMU reading goes out ``FIRMWARE_IMU_HZ / physics_hz`` times
+(a zero-order hold, as the stabilizer's 500 Hz attitude rate would see it). At 1 kHz the world took half a core,
+the largest share of a flight on 2 cores after the ground station's loop; at 500 Hz it takes a quarter (2026-12-02).
+The Python modules fly at 240 Hz."""
 REBOOT_STATUS = 3
 READY_TIMEOUT_S = 10.0
-FIRMWARE_PRIORITY = 15
+FIRMWARE_PRIORITY = 5
 """SCHED_FIFO priority of the firmware processes (and every task thread of theirs), where the host permits it and
-they fit (:data:`FIRMWARE_CPU_SHARE`): below the world that feeds them (20), above the ground station's loop (10).
-On hardware each module's firmware has a processor of its own; behind ordinary processes on a busy host it
-answered tens of ms late, which the ground station rightly takes for a degraded link. Below the loop instead (5),
-the loop's busy periods after take-off held them back as much (round trips of 18 ms, 2026-12-02)."""
+they fit (:data:`FIRMWARE_CPU_SHARE`): below the world that feeds them (20) and the ground station's loop (10),
+above every ordinary process. On hardware each module's firmware has a processor of its own; behind ordinary
+processes on a busy host it answered tens of ms late, which the ground station rightly takes for a degraded link.
+Above the loop (15), they took the loop's core 1000 times a second: 500-930 of a flight's 6000 periods were late
+(against 10-160 at 5), and in one flight in three more than the flight's 25 % bound (2026-12-02, with the world at
+:data:`FIRMWARE_PHYSICS_HZ`; at 1 kHz the world itself held them back below the loop)."""
 FIRMWARE_CPU_SHARE = 0.2
 """What one firmware process takes of a core, fed at 1 kHz (measured 13-19 %: its 1 kHz tick, the stabilizer, the
 links' 1 ms polls; its idle task sleeps in ``vApplicationIdleHook``). Real-time processes are never preempted by
@@ -131,6 +137,8 @@ class FirmwareCrazyflies(ModulePeer):
         self._tmp = None if state_dir is not None else tempfile.TemporaryDirectory(prefix="cf_sitl-")
         self.state_dir = Path(state_dir if state_dir is not None else self._tmp.name)
         """Where each module keeps its stored parameters (``m<i>.params``) and its console log (``m<i>.log``)."""
+        self.imu_per_step = 1
+        """Sensor datagrams each module gets per physics step (:data:`FIRMWARE_PHYSICS_HZ`)."""
         self._tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._seq = 0
         self.realtime_firmware = False
@@ -143,6 +151,11 @@ class FirmwareCrazyflies(ModulePeer):
         if self.assembly.params.motor_command is None:
             raise ValueError("the assembly's module_params has no motor_command: the motors need their platform's "
                              "thrust model")
+        rate = FIRMWARE_IMU_HZ / self.config.physics_hz
+        if rate < 1 or abs(rate - round(rate)) > 1e-9:
+            raise ValueError(f"physics at {self.config.physics_hz:g} Hz cannot pace the firmware's {FIRMWARE_IMU_HZ} "
+                             f"Hz IMU: give a rate that divides it (e.g. {FIRMWARE_PHYSICS_HZ:g})")
+        self.imu_per_step = round(rate)
         self.state_dir.mkdir(parents=True, exist_ok=True)
         c = self.config
         self._procs = []  # filled one by one: closing stops the ones already started if a later one fails
@@ -166,7 +179,7 @@ class FirmwareCrazyflies(ModulePeer):
                 dead = [i for i, p in enumerate(self._procs) if not p.heard]
                 raise ValueError(f"firmware modules {dead} did not start (see {self.state_dir}/m<i>.log)")
             for i, p in enumerate(self._procs):
-                self._send_sensors(p, self.module_frame(i, rest), np.zeros(3), np.zeros(4))
+                self._send_sensors(p, self.module_frame(i, rest).tolist(), [0.0] * 3, [0] * 4)
                 p.receive()
             time.sleep(0.001)
 
@@ -178,24 +191,29 @@ class FirmwareCrazyflies(ModulePeer):
         if self._tmp is not None:
             self._tmp.cleanup()
 
-    def _send_sensors(self, p: _Process, acc_g: np.ndarray, gyro_rad: np.ndarray, rpm: np.ndarray) -> None:
-        # Plain floats: this runs twice per 1 kHz step, and numpy's per-call overhead was a sixth of the step.
+    def _send_sensors(self, p: _Process, acc_g: list[float], gyro_deg_s: list[float], rpm: list[int]) -> None:
+        # Plain floats, packed as they come: this runs for every module at 1 kHz, and numpy's per-call overhead
+        # per module was a sixth of the step.
         self._seq += 1
-        packet = SENSOR.pack(b"CFSI", self._seq & 0xFFFFFFFF, self.sim.time, *acc_g.tolist(),
-                             *(math.degrees(w) for w in gyro_rad.tolist()), float(self.config.battery_v),
-                             *(min(max(round(r), 0), 65535) for r in rpm.tolist()))
+        packet = SENSOR.pack(b"CFSI", self._seq & 0xFFFFFFFF, self.sim.time, *acc_g, *gyro_deg_s,
+                             float(self.config.battery_v), *rpm)
         with contextlib.suppress(OSError):
             self._tx.sendto(packet, ("127.0.0.1", p.sensor_port))
 
     def _serve(self, now: float) -> None:
-        specific_force = self.specific_force()
+        # Every module's IMU at once (one call each, not one per module: a third of the 1 kHz step was per-module
+        # numpy calls, 2026-12-02).
+        acc = self.module_frames(self.specific_force()).tolist()
+        gyro = np.degrees(self.module_gyros()).tolist()
+        rpm = np.clip(np.rint(self.module_rpms()), 0, 65535).astype(int).tolist()
         for i, p in enumerate(self._procs):
             if not p.alive():
                 if p.proc.returncode == REBOOT_STATUS:
                     p.start()  # a reboot: the same links, the stored parameters
                 p.info = 0  # a dead process: its link is silent, its motors stop, nothing about it is known
                 continue
-            self._send_sensors(p, self.module_frame(i, specific_force), self.module_gyro(i), self.module_rpm(i))
+            for _ in range(self.imu_per_step):
+                self._send_sensors(p, acc[i], gyro[i], rpm[i])
             p.receive()
 
     def _rotor_inputs(self, now: float) -> np.ndarray:

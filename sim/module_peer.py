@@ -18,7 +18,6 @@ import numpy as np
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
-from groundstation.backends.base import Telemetry
 from groundstation.backends.section import SIM_MOTOR_TIME_CONSTANT, SIM_PHYSICS_HZ
 from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import PosePublisher, open_session
@@ -84,9 +83,6 @@ class ModulePeer:
         sim_config = SimConfig(physics_hz=c.physics_hz, motor_time_constant=c.motor_time_constant,
                                mocap_rate_hz=0.0)  # the virtual mocap measures
         self.sim = PyBulletBackend(assembly, sim_config, observers=[self._observe])
-        self._sensed: tuple[float, Telemetry] | None = None
-        """(simulated time s, the physics' telemetry then): the motors read once per step (a 1 kHz
-        firmware-in-the-loop peer read them eight times a step: a third of its time)."""
         self._last_velocity: tuple[float, np.ndarray] | None = None
         """(time s, body velocity m/s) at the previous physics step, for the accelerometers."""
         self._t0 = time.monotonic()
@@ -194,16 +190,14 @@ class ModulePeer:
                 self._t0 -= remaining
                 self.pauses += 1
 
-    def sensors(self) -> Telemetry:
-        """What the physics gives at this step (rotor inputs after the motor lag, one gyro's reading)."""
-        if self._sensed is None or self._sensed[0] != self.sim.time:
-            self._sensed = (self.sim.time, self.sim.telemetry())
-        return self._sensed[1]
-
     def module_gyro(self, i: int) -> np.ndarray:
         """Module i's gyro: the body rate in the module's frame, rad/s, with noise of its own (read afresh: each
         module's IMU is a sensor of its own, and the ground station compares them)."""
-        return self.module_frame(i, self.sim.telemetry().gyro)
+        return self.module_frame(i, self.sim.gyro_readings(1)[0])
+
+    def module_gyros(self) -> np.ndarray:
+        """Every module's gyro at once, (n, 3) rad/s, each in its module's frame with noise of its own."""
+        return np.einsum("nji,nj->ni", self.assembly.module_rotations, self.sim.gyro_readings(self.assembly.n))
 
     def specific_force(self) -> np.ndarray:
         """The body's specific force (acceleration less gravity) in the body frame, in g, from its velocity over
@@ -220,13 +214,21 @@ class ModulePeer:
         """A body-frame vector in module i's frame (what its IMU measures)."""
         return self.assembly.module_rotations[i].T @ body_vector
 
+    def module_frames(self, body_vector: np.ndarray) -> np.ndarray:
+        """A body-frame vector in every module's frame, (n, 3)."""
+        return body_vector @ self.assembly.module_rotations
+
     def module_rpm(self, i: int) -> np.ndarray:
         """Module i's motor speeds as bidirectional DSHOT reports them, RPM."""
-        return np.sqrt(np.maximum(self.module_motors(i), 0.0)) * 60.0 / (2.0 * np.pi)
+        return self.module_rpms()[i]
+
+    def module_rpms(self) -> np.ndarray:
+        """Every module's motor speeds, (n, 4) RPM."""
+        return np.sqrt(np.maximum(self.sim.rotor_inputs.reshape(-1, 4), 0.0)) * (60.0 / (2.0 * np.pi))
 
     def module_motors(self, i: int) -> np.ndarray:
         """Module i's rotor inputs as the physics applies them (after the motor lag), rad^2/s^2."""
-        return self.sensors().motors[4 * i:4 * i + 4]
+        return self.sim.rotor_inputs[4 * i:4 * i + 4].copy()
 
     def __enter__(self):
         self.open()

@@ -156,14 +156,24 @@ class PyBulletBackend(BackendBase):
         self._u_cmd = applied_command(u, self._u_cmd.size, self._armed, self.assembly.params.u_max)
 
     def telemetry(self) -> Telemetry:
-        gyro = self._delayed(self.config.gyro_delay).omega + self._gyro_bias + self._rng.normal(
-            0.0, self.config.gyro_noise, 3)
+        gyro = self.gyro_readings(1)[0]
         rates = np.tile(gyro, (self.assembly.n, 1))  # one rigid body: every module measures its rate
         if self.failed_gyro is not None:
             rates[self.failed_gyro] = self.assembly.module_rotations[self.failed_gyro] @ (GYRO_FULL_SCALE, 0.0, 0.0)
             gyro = rates.mean(axis=0)
         return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
                          gyro=gyro, module_gyros=rates)
+
+    @property
+    def rotor_inputs(self) -> np.ndarray:
+        """The rotor inputs the physics applies now (after the motor lag), (4n,) rad^2/s^2; a view: do not keep."""
+        return self._u
+
+    def gyro_readings(self, count: int) -> np.ndarray:
+        """``count`` gyros' readings of the body rate now, (count, 3) rad/s in the body frame: the rate
+        ``gyro_delay`` s ago, the bias, and noise of each gyro's own."""
+        return self._delayed(self.config.gyro_delay).omega + self._gyro_bias + self._rng.normal(
+            0.0, self.config.gyro_noise, (count, 3))
 
     def disarm(self) -> None:
         """Zero command, disarmed: the rotors spin down through their lag."""

@@ -15,6 +15,10 @@ from groundstation.cli.common import FINITE, SEED, json_safe, progress_bar, stde
 from groundstation.errors import UsageError
 
 EXIT_INFEASIBLE = 1
+TABLE_ROWS = 10
+"""Feasible candidates the printed ranking shows at most (``--table`` has every row)."""
+UNBOUNDED = 1_000_000
+"""Console width, columns, at which a table is measured: wider than any table, so none is cropped to fit."""
 
 
 @click.command("design")
@@ -123,7 +127,7 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
         from groundstation.design.figures import plot_assembly, plot_cost_against_bound, plot_costs, plot_polytope
         from groundstation.design.selection import bound_grid, cost_against_bound
 
-        plot_assembly(sel.best.assembly, fig_dir / "fig1_assembly.png")
+        plot_assembly(sel.best.assembly, fig_dir / "fig1_assembly.png", sel.best.row.cost)
         plot_costs(rows, sel.n, fig_dir / "fig5_costs.png")
         plot_polytope(sel.best.assembly, sel.best.wrenches[:, :3], fig_dir / "fig6_polytope.png")
     if fig_dir is not None and least:
@@ -154,36 +158,57 @@ def _least_bound(row: dict, nominal: float) -> str:
 
 
 def _print_ranking(sel, task_name: str, rows: list[dict], nominal: float, least: bool) -> None:
-    """The feasible candidates of the chosen n (best first) with their start statistics and (``least``) least input
-    bound, then the infeasible ones with why (and the bound they would need), then the runner-up gap."""
+    """The smaller n Algorithm 2 went through; then the candidates of the chosen n: the feasible ones (the best
+    :data:`TABLE_ROWS`) in a table with their start statistics and (``least``) least input bound, the others with
+    why (a certificate's proof, or that no start met the wrenches, which proves nothing) and the bound they would
+    need; then the best and the runner-up, and the best's angles."""
+    from groundstation.design.figures import design_angles
+
+    for n in sorted({r["n"] for r in rows} - {sel.n}):
+        below = [r for r in rows if r["n"] == n]
+        certified = sum(bool(r["certificate"]) for r in below)
+        click.echo(f"n = {n}: 0 of {len(below)} candidates feasible ({certified} certified infeasible, "
+                   f"{len(below) - certified} not found feasible)")
     level = [r for r in rows if r["n"] == sel.n]
-    t = Table(title=f"{task_name}: {len(sel.ranking)} of {len(level)} candidates with n = {sel.n} feasible")
+    ranking = sel.ranking
+    shown = ranking[:TABLE_ROWS]
+    which = "the feasible ones, best first" if len(shown) == len(ranking) else \
+        f"the {len(shown)} best of the {len(ranking)} feasible; --table FILE has every row"
+    click.echo(f"{task_name}: n = {sel.n}, {len(ranking)} of {len(level)} candidates feasible; the table shows "
+               f"{len(shown)} of {len(level)} candidates ({which})")
+    t = Table()
     # starts: run (feasible); optima: distinct local optima reached; hits: starts reaching the best; spread: gap
     # to the topology's second local optimum; least u_max: the least input bound at which it is feasible (and
     # against the nominal one); s: wall time of both searches.
     columns = ("code", "cost", "vs best", "starts", "optima", "hits", "spread") + (("least u_max",) if least else ())
     for col in (*columns, "s"):
-        t.add_column(col, justify="right", no_wrap=True)
-    best_cost = sel.ranking[0].cost
+        t.add_column(col, justify="right", overflow="fold")  # (a terminal too narrow folds a cell, never cuts it)
+    best_cost = ranking[0].cost
     by_code = {r["code"]: r for r in level}
-    for r in sel.ranking[:10]:
+    for r in shown:
         cells = [r.code, f"{r.cost:.5g}", f"{100 * (r.cost / best_cost - 1):+.2f}%",
                  f"{r.starts} ({r.feasible_starts})", str(r.optima), str(r.best_hits),
                  "-" if r.spread is None else f"{100 * r.spread:.2f}%"]
         t.add_row(*cells, *([_least_bound(by_code[r.code], nominal)] if least else []),
                   f"{r.wall_s + r.least_u_max_s:.1f}")
-    Console(width=140).print(t)  # wider than a pipe's default 80 columns: the table is about 100
+    console = Console()
+    if not console.is_terminal:  # a pipe or a file has no width (rich would crop to 80 columns): the table's own
+        console = Console(width=Console(width=UNBOUNDED).measure(t).maximum)
+    console.print(t)
     for r in level:
         if not r["feasible"]:
-            why = r["certificate"] or (f"no start met the wrenches (least residual {r['max_wrench_residual']:.3g}, "
-                                       f"{r['starts']} starts)")
+            # a certificate proves it; a multi-start that met no wrench set proves nothing
+            why = f"infeasible: {r['certificate']}" if r["certificate"] else \
+                f"not found feasible: no start met the wrenches (least residual {r['max_wrench_residual']:.3g}, " \
+                f"{r['starts']} starts)"
             if least:
                 needs = _least_bound(r, nominal)
                 why += "; " + {"never": "no u_max makes it feasible",
                                "none found": "no start of the least-u_max search met the wrenches either"}.get(
                     needs, f"feasible from u_max = {needs}")
-            click.echo(f"  {r['code']}: infeasible: {why}")
-    runner = sel.runner_up
-    if runner is not None:
-        click.echo(f"best {sel.ranking[0].code} ({best_cost:.5g}); runner-up {runner.code} ({runner.cost:.5g}, "
-                   f"{100 * (runner.cost / best_cost - 1):+.2f} %)")
+            click.echo(f"  {r['code']}: {why}")
+    best, runner = ranking[0], sel.runner_up
+    second = f"runner-up {runner.code} ({runner.cost:.5g}, {100 * (runner.cost / best_cost - 1):+.2f} %)" \
+        if runner is not None else f"no runner-up: the only feasible candidate with n = {sel.n}"
+    click.echo(f"best {best.code} ({best_cost:.5g}); {second}")
+    click.echo(f"angles of {best.code} (deg): {', '.join(design_angles(sel.best.assembly))}")

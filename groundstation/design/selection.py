@@ -139,6 +139,10 @@ class Selection:
         return ranked[1] if len(ranked) > 1 else None
 
 
+DRAWING_ONLY = frozenset({"figures.py", "drawing.py"})
+"""Modules of ``design`` that only draw what was solved: a change to a figure does not make a sweep solve again."""
+
+
 @functools.cache
 def solver_version() -> str:
     """What a design depends on besides its inputs: the package version, the source of the ``assembly`` and
@@ -147,7 +151,8 @@ def solver_version() -> str:
     digest = hashlib.sha256(f"{__version__} casadi {ca.__version__} numpy {np.__version__}".encode())
     for package in (groundstation.assembly, groundstation.design):
         for path in sorted(Path(package.__file__).parent.glob("*.py")):
-            digest.update(path.name.encode() + b"\0" + path.read_bytes())
+            if path.name not in DRAWING_ONLY:
+                digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()[:16]
 
 

@@ -128,6 +128,11 @@ def _connect(uri: str, timeout: float, cache: str | None,
         while not ready.wait(0.05) and not foreign() and time.monotonic() < deadline:
             pass
     if ready.is_set() and not failure:
+        # cflib pings every link it connects 10 times a second (link statistics, 0.1.34). A module answers to
+        # where its last datagram came from, so each ping drew replies away from a backend already streaming on
+        # another socket; and a ping sent while the link closed printed a thread's traceback ("Bad file
+        # descriptor", then "cannot join current thread") on the pilot's terminal.
+        cf.link_statistics.stop()
         return cf, ""
     _close(cf)
     return None, failure[0] if failure else f"no answer within {timeout:g} s"
@@ -139,6 +144,7 @@ def _close(cf: Crazyflie) -> None:
     app only answers commands), and closing joins both. Wake them first (cflib 0.1.34 internals: ``incoming``, the
     driver's ``in_queue``, where a None packet is skipped, and the UDP receive thread's stop flag ``_sp``, set before
     a version request whose answer ends its receive)."""
+    cf.link_statistics.stop()  # no ping after the close (see _connect)
     for timer in list(cf._answer_patterns.values()):  # no repeat after the close (see _no_answer_do_retry)
         if timer is not None:
             timer.cancel()

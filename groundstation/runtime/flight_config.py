@@ -264,7 +264,12 @@ class FlightConfig:
     such stalls, 4 of 4 flights landed (2026-12-02)."""
     log_dir: str = "../../out/flights"
     """Where MCAP logs go, relative to this config."""
-    allocation: Literal["clip", "bounded"] = "clip"
+    allocation: Literal["clip", "bounded"] = "bounded"
+    """How the controller's wrench becomes rotor inputs: ``bounded`` (the producible wrench nearest the request
+    when rotors saturate; the paper's clipped inverse otherwise) or ``clip`` (the paper's §V, clipped always).
+    Clipping changes the produced wrench's direction when rotors saturate: an operator landing begun at the
+    figure-8's fastest point saturated the Crazyflie V's rotors for 0.5 s, and clipped commands rolled it past
+    75 deg (its firmware and our model of it alike); bounded, it landed with under 0.2 deg of roll (2026-12-02)."""
     backend: BackendSection = SimSection()
     mocap: MocapSection = MocapSection()
     trajectory: TrajectorySection = TrajectorySection()

@@ -1,15 +1,25 @@
 import csv
 import json
+import math
+import re
 from pathlib import Path
 
 import pytest
 from matplotlib.image import imread
 
 from groundstation.assembly.assembly_file import load_assembly
+from groundstation.cli.design_cmd import _print_ranking
+from groundstation.design.selection import CandidateResult, SelectedDesign, Selection, results_table
 
 ROOT = Path(__file__).resolve().parents[2]
 TOY = str(ROOT / "configs/tasks/toy_push_y.toml")
+TOY_V2 = ROOT / "configs/assemblies/toy_v2.json"  # a saved toy design record
 
+
+def _printed_angles(out: str, code: str) -> list[float]:
+    """The best's angles as printed, deg, in the assembly file's order: yaw_deg, then angles_deg."""
+    line = next(line for line in out.splitlines() if line.startswith(f"angles of {code} (deg): "))
+    return [float(v) for v in re.findall(r"(-?\d+\.\d+)(?:,|$)", line)]
 
 
 def test_toy_design_outputs(cli, tmp_path):
@@ -30,10 +40,15 @@ def test_toy_design_outputs(cli, tmp_path):
 
 
 def test_toy_design_prints_the_least_bound(cli, tmp_path):
-    table, figs = tmp_path / "t.json", tmp_path / "figs"
+    table, figs, best = tmp_path / "t.json", tmp_path / "figs", tmp_path / "best.json"
     code, out, _ = cli("design", TOY, "--max-modules", "2", "--table", str(table), "--least-u-max", "--figures",
-                       str(figs))
+                       str(figs), "--out", str(best))
     assert code == 0
+    assert "n = 1: 0 of 1 candidates feasible (1 certified infeasible, 0 not found feasible)" in out
+    assert "n = 2, 1 of 1 candidates feasible; the table shows 1 of 1 candidates" in out
+    assert "best oE (7.37" in out and "no runner-up: the only feasible candidate with n = 2" in out
+    saved = json.loads(best.read_text())
+    assert _printed_angles(out, "oE") == pytest.approx([saved["yaw_deg"], *saved["angles_deg"]], abs=0.005)
     rows = json.loads(table.read_text())
     v = rows[1]["least_u_max"]
     # Never for the single module (one thrust axis: the proof, and JSON's null for inf), below u_max for the V.
@@ -43,6 +58,37 @@ def test_toy_design_prints_the_least_bound(cli, tmp_path):
     header = next(line for line in out.splitlines() if "code" in line)
     assert "least u_max" in header  # the whole header: not cut to a pipe's 80 columns
     assert f"{v:.5g} ({100 * (v / 4e6 - 1):+.2f}%)" in out
+
+
+def _result(n: int, code: str, cost: float = math.inf, certificate: str = "") -> CandidateResult:
+    return CandidateResult(n, code, "ok", math.isfinite(cost), cost, 0, 1.0, 0.1, 0.05, code, starts=16,
+                           feasible_starts=4 if math.isfinite(cost) else 0, optima=1, certificate=certificate)
+
+
+def test_the_ranking_says_what_it_shows_and_prints_every_cell_whole(capsys):
+    """12 feasible candidates with codes long enough that the table is wider than any fixed console, a certified
+    and two uncertified infeasible ones, and a smaller n; stdout is not a terminal (a pipe)."""
+    record = json.loads(TOY_V2.read_text())
+    best = _result(2, "oS", record["cost"])
+    feasible = [best] + [_result(2, "o" + "S(W)" * 20 + "E" * k, record["cost"] * (1 + k / 100)) for k in range(1, 12)]
+    proof = "every force of every design lies along one line"
+    others = [_result(2, "oEEE", certificate=proof), _result(2, "oSEN"), _result(2, "oS(W)E"),
+              _result(1, "o", certificate=proof)]
+    sel = Selection(SelectedDesign.of(best, record, str(TOY_V2)), 2, tuple(feasible + others))
+    _print_ranking(sel, "t", results_table(sel.results), 4e6, least=False)
+    out = capsys.readouterr().out
+    assert "n = 1: 0 of 1 candidates feasible (1 certified infeasible, 0 not found feasible)" in out
+    assert "t: n = 2, 12 of 15 candidates feasible; the table shows 10 of 15 candidates (the 10 best of the 12 " \
+           "feasible; --table FILE has every row)" in out
+    table = [line for line in out.splitlines() if line.startswith(("┃", "│"))]
+    assert len(table) == 1 + 10
+    assert [line.split("│")[1].strip() for line in table[1:]] == [r.code for r in feasible[:10]]  # whole codes
+    assert "…" not in out and len({len(line) for line in table}) == 1 and len(table[0]) > 140
+    assert f"  oEEE: infeasible: {proof}\n" in out  # certified: infeasible, with the proof
+    for code in ("oSEN", "oS(W)E"):  # no certificate: nothing is proven
+        assert f"  {code}: not found feasible: no start met the wrenches (least residual 0.05, 16 starts)\n" in out
+    assert f"best oS ({record['cost']:.5g}); runner-up {feasible[1].code} ({feasible[1].cost:.5g}, +1.00 %)" in out
+    assert _printed_angles(out, "oS") == pytest.approx([record["yaw_deg"], *record["angles_deg"]], abs=0.005)
 
 
 def test_least_bound_cell():
@@ -118,6 +164,9 @@ def test_ctrl_c_stops_a_sweep_and_the_rerun_resumes(cli, tmp_path, workers):
     assert "run the same command to resume" in err and "Traceback" not in err
     kept = _lines(results)
     assert 1 <= len(kept) < 7  # stopped before the end of the 7 candidates
+    assert all(json.loads(line)["row"]["code"] for line in kept)  # whole rows only, even from a terminated pool
+    if workers == "2":
+        return  # the rerun is the same code for either (and solves the rest of the sweep: 12 s of CI)
     code, out, err = cli(*args)
     assert code == 0 and "best oSEE" in out
     after = _lines(results)

@@ -21,9 +21,16 @@ def toy_wrenches():
 
 
 def scan_symmetric_v(wrenches):
-    """Independent of the solver: minimum-norm cost of the symmetric V family over its tilt, 0.01 deg steps."""
+    """Independent of the solver: minimum-norm cost of the symmetric V family over its tilt, 0.1 deg steps over
+    0-60 deg, then 0.01 deg steps within 0.1 deg of the best (the cost is smooth in the tilt; 6000 fine steps took
+    22 s of the suite)."""
+    coarse = _scan_tilts(wrenches, np.arange(0.0, 60.0, 0.1))
+    return _scan_tilts(wrenches, np.arange(coarse[1] - 0.1, coarse[1] + 0.1 + 1e-9, 0.01))
+
+
+def _scan_tilts(wrenches, tilts_deg):
     best = (np.inf, None)
-    for tilt in np.radians(np.arange(0.0, 60.0, 0.01)):
+    for tilt in np.radians(tilts_deg):
         pos, rot = kin.module_frames(Topology.from_code("oS"), np.array([tilt, 0.0, -2 * tilt]), P.l_c)
         a = kin.allocation_matrix(pos, rot, P)
         u = wrenches @ np.linalg.pinv(a).T

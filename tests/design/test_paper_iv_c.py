@@ -125,7 +125,7 @@ def independent_best(code: str, starts: int = STARTS) -> float | None:
 @pytest.fixture(scope="module")
 def product(tmp_path_factory):
     path = tmp_path_factory.mktemp("iv_c") / "results.jsonl"
-    sel = select(TASK, P, 4, min_modules=4, results_path=path, least=True)
+    sel = select(TASK, P, 4, min_modules=4, results_path=path, least=True, workers=2)  # 2 cores: half the time
     entries = [json.loads(line) for line in path.read_text().splitlines()]
     return sel, {e["row"]["code"]: e["record"] for e in entries}, {e["row"]["code"]: e["least_u_max_record"]
                                                                    for e in entries}

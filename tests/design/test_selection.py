@@ -156,6 +156,17 @@ def test_the_solver_version_hashes_the_design_and_assembly_sources():
     assert version == selection.solver_version()
 
 
+@pytest.mark.parametrize("edited, solves_again", [("nlp.py", True), ("figures.py", False), ("drawing.py", False)])
+def test_an_edited_solver_file_makes_rows_new_work_a_figure_does_not(monkeypatch, edited, solves_again):
+    from pathlib import Path
+
+    hashed = selection.solver_version.__wrapped__  # uncached: the sources as they are now
+    before = hashed()
+    read = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda self: read(self) + (b"# edited" if self.name == edited else b""))
+    assert (hashed() != before) is solves_again
+
+
 def test_results_lines_carry_the_least_bound_design(toy_results):
     single, v = toy_results
     assert single["row"]["never_feasible"] and single["row"]["least_u_max"] == float("inf")

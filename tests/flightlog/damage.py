@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import atexit
 import functools
+import io
 import json
 import shutil
 import tempfile
@@ -93,17 +94,41 @@ class Expected:
     """Messages of surviving chunks whose channel record is lost."""
 
 
-def expected(path: Path, damaged: list[int] = (), cut: int | None = None, summary_intact: bool = True) -> Expected:
-    """What survives flipping the bytes at ``damaged`` and cutting the file at ``cut``."""
+def expected(path: Path, damaged: list[int] = (), cut: int | None = None, summary_intact: bool = True,
+             mask: int = 0xFF) -> Expected:
+    """What survives XORing the bytes at ``damaged`` with ``mask`` and cutting the file at ``cut``."""
     chunks = chunks_of(path)
     for offset in damaged:
         assert not any(offset - c.start in UNPROTECTED for c in chunks), f"byte {offset} is not covered by a CRC"
-    alive = [c for c in chunks if not any(c.start <= o < c.end for o in damaged) and (cut is None or c.end <= cut)]
+    alive = [c for c in chunks if _reads_intact(path, c, damaged, mask) and (cut is None or c.end <= cut)]
     known = {t for c in chunks for t in c.topics} if summary_intact else {t for c in alive for t in c.defines}
     messages = sum(n for c in alive for t, n in c.topics.items() if t in known)
     orphans = sum(n for c in alive for t, n in c.topics.items() if t not in known)
     periods = sum(c.periods for c in alive) if "/control" in known else 0
     return Expected(len(alive), messages, periods, orphans)
+
+
+def _reads_intact(path: Path, chunk: ChunkContents, damaged: list[int], mask: int) -> bool:
+    """Whether ``chunk`` with its bytes at ``damaged`` flipped still reads, CRC checked, as exactly the original's
+    records with the ``mcap`` package's own reader. Almost every flip breaks the chunk, but not all: a flip in a
+    part of the zstd frame header that the decoder does not need leaves the data, and its CRC, as they were (seen
+    in 1 of 64 spread flips, 2026-12-02)."""
+    hits = [o - chunk.start for o in damaged if chunk.start <= o < chunk.end]
+    if not hits:
+        return True
+    data = bytearray(path.read_bytes()[chunk.start:chunk.end])
+    for o in hits:
+        data[o] ^= mask
+    try:
+        original = _chunk_records(bytes(path.read_bytes()[chunk.start:chunk.end]))
+        return _chunk_records(bytes(data)) == original
+    except Exception:  # any failure of the reader (CRC, zstd, lengths) means the chunk is lost
+        return False
+
+
+def _chunk_records(data: bytes) -> list:
+    chunk = next(StreamReader(io.BytesIO(data), skip_magic=True, emit_chunks=True).records)
+    return breakup_chunk(chunk, validate_crc=True)
 
 
 def flipped(src: Path, dst: Path, offsets: list[int], mask: int = 0xFF) -> Path:
