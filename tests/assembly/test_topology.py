@@ -41,7 +41,7 @@ def test_matrix_and_code_round_trip(tree):
     assert Topology.from_code(topo.code) == topo
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(lattice_trees(min_n=2), )
 def test_canonical_form_invariant_under_group(tree):
     topo = Topology.from_cells_edges(*tree)
