@@ -9,6 +9,7 @@ closed explicitly (an unclosed session keeps the process alive at exit).
 from __future__ import annotations
 
 import json
+import socket
 import threading
 import time
 from collections import deque
@@ -67,10 +68,30 @@ def open_session(listen: list[str] | None = None, connect: list[str] | None = No
                 cfg.insert_json5(f"{tls}{side}_private_key", json.dumps(security.private_key))
         if security.access_control is not None:
             cfg.insert_json5("access_control", security.access_control)
+    for endpoint in listen or []:
+        check_listenable(endpoint)
     try:
         return zenoh.open(cfg)
     except Exception as exc:  # zenoh raises ZError carrying the transport's reason
         raise SessionError(f"cannot open Zenoh session (listen {listen}, connect {connect}): {exc}") from None
+
+
+def check_listenable(endpoint: str) -> None:
+    """Refuse at once an IP endpoint whose address this host cannot listen on (a port in use, an address not
+    ours): Zenoh retries a listen endpoint for 10 s before it gives up with the same reason."""
+    proto, _, address = endpoint.partition("/")
+    kind = {"tcp": socket.SOCK_STREAM, "tls": socket.SOCK_STREAM, "udp": socket.SOCK_DGRAM,
+            "quic": socket.SOCK_DGRAM}.get(proto)
+    host, _, port = address.split("?")[0].split("#")[0].rpartition(":")
+    if kind is None or not port.isdigit() or int(port) == 0:
+        return  # not an IP endpoint with a fixed port: Zenoh's own check
+    try:
+        family, _, _, _, where = socket.getaddrinfo(host.strip("[]"), int(port), type=kind)[0]
+        with socket.socket(family, kind) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as Zenoh binds: TIME_WAIT is no conflict
+            probe.bind(where)
+    except OSError as exc:
+        raise SessionError(f"cannot listen on {endpoint}: {exc.strerror or exc}") from None
 
 
 def pose_key(prefix: str, body: str) -> str:

@@ -50,7 +50,14 @@ from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import FlightLog, claim
 from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.auth import MocapKey
-from groundstation.mocap.zenoh_link import PoseSubscriber, Security, SubscriberSettings, open_session, pose_key
+from groundstation.mocap.zenoh_link import (
+    PoseSubscriber,
+    Security,
+    SubscriberSettings,
+    check_listenable,
+    open_session,
+    pose_key,
+)
 from groundstation.runtime.closed_loop import (
     FlightVolume,
     dynamics_check,
@@ -353,6 +360,8 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
         with ExitStack() as stack:
             m = p.cfg.mocap
             ours, theirs = ([m.endpoint], []) if m.listen else ([], [m.endpoint])
+            for endpoint in ours:  # before a simulated world connects to it: its session took 10 s to close
+                check_listenable(endpoint)
             # Before the flight's own links open (a cflib connection and the raw link cannot share a module).
             firmware_issues = _firmware_param_issues(p.cfg, p.base, p.src, p.log_file.parent)
             world = stack.enter_context(load(p.kind.world)(p.assembly, p.cfg, p.key, theirs, faults, activity,

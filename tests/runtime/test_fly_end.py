@@ -53,7 +53,7 @@ def test_a_flight_that_fails_before_its_log_opens_leaves_no_file(tmp_path):
         taken.listen()
         cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7656", **{"latency_s = 0.005": "latency_s = 0.005\n"
                                                                                           "listen = true"})
-        with pytest.raises(SessionError):
+        with pytest.raises(SessionError, match="cannot listen on tcp/127.0.0.1:7656: Address already in use"):
             fly(cfg, log_path=log)
     assert not log.exists()  # the claim is released: the same --log works next time
 
