@@ -445,17 +445,38 @@ with HTTP 400; ``start_server`` has no option for it). A client offering only th
 (``@foxglove/ws-protocol``'s default, Lichtblick before 1.22) is refused: README, "In Foxglove"."""
 
 
+SDK_LOG_PER_S = 10
+"""At most this many of the SDK's records a second go to ``/log``; the rest are counted, and the count follows."""
+
+
 class _SdkLog(logging.Handler):
     """Records of the SDK's loggers (``foxglove.*``; written by its server's threads), kept for the writer to put on
     ``/log``. Without a handler of their own they reach Python's last-resort handler, which prints them on the
-    terminal the flight shares with the writer process: over the pilot's status line."""
+    terminal the flight shares with the writer process: over the pilot's status line. A client that retries a
+    refused handshake in a loop makes one record per attempt: kept to :data:`SDK_LOG_PER_S` a second, then one
+    record saying how many were left out, so neither the log nor the writer's memory grows with the attempts."""
 
     def __init__(self) -> None:
         super().__init__()
         self.records: deque[logging.LogRecord] = deque()
+        self._second = (-math.inf, 0, 0)
+        """(start of this second, monotonic s; records kept in it; records left out in it)."""
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
+        now = time.monotonic()
+        start, kept, left_out = self._second
+        if now - start >= 1.0:
+            if left_out:
+                self.records.append(logging.makeLogRecord({
+                    "name": record.name, "levelname": "WARNING", "levelno": logging.WARNING,
+                    "msg": f"{left_out} more messages of the live server in a second, not logged"}))
+            start, kept, left_out = now, 0, 0
+        if kept < SDK_LOG_PER_S:
+            self.records.append(record)
+            kept += 1
+        else:
+            left_out += 1
+        self._second = (start, kept, left_out)
 
 
 class _Live:
@@ -662,7 +683,12 @@ class _Writer:
         one): the static messages its clients need (:meth:`_Live.serve`) and the SDK's warnings, onto ``/log``."""
         if self._live is None:
             return
-        self._live.serve(self._last_ns)
+        try:
+            self._live.serve(self._last_ns)
+        except Exception as exc:  # noqa: BLE001 - as in _add: whatever the live view does must not cost the log
+            port, self._live = self._live.port, None
+            self._note(Log.WARNING, f"live view on port {port} stopped: {type(exc).__name__}: {exc}")
+            return
         records = self._live.log.records
         while records:
             r = records.popleft()

@@ -142,6 +142,8 @@ class MocapSection:
     @field_validator("body")
     @classmethod
     def _body_concrete(cls, value: str) -> str:
+        if value == "stats":  # its poses would be logged on /mocap/stats, the subscriber's counters' channel
+            raise ValueError("'stats' is the name of the log's /mocap/stats channel: name the body otherwise")
         return _concrete_key(value, "one")
 
     @field_validator("key_prefix")

@@ -63,6 +63,8 @@ BAD_INPUTS = [
      (), "leaves the flight volume"),
     ("mocap_body_wildcard", {'body = "assembly"': 'body = "*"'}, (), "mocap.body"),
     ("mocap_body_empty", {'body = "assembly"': 'body = ""'}, (), "mocap.body"),
+    ("mocap_body_stats", {'body = "assembly"': 'body = "stats"'}, (),
+     "mocap.body: 'stats' is the name of the log's /mocap/stats channel"),
     ("mocap_key_prefix_wildcard", {'key_prefix = "mocap"': 'key_prefix = "mocap/**"'}, (), "mocap.key_prefix"),
     ("negative_mocap_timeout", {"mocap_timeout_s = 0.25": "mocap_timeout_s = -1"}, (), "mocap_timeout_s"),
     ("three_links_for_two_modules", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:1", '

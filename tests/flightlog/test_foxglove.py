@@ -313,3 +313,47 @@ def test_a_client_that_stops_reading_does_not_hold_the_writer(tmp_path):
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         s.bind(("127.0.0.1", port))
     ws.close()
+
+
+def test_a_flood_of_server_warnings_is_kept_to_its_rate_and_counted(monkeypatch):
+    """A client retrying a refused handshake in a loop: one SDK warning per attempt, 10 a second reach /log, and
+    then one record with how many more there were."""
+    from groundstation.flightlog import mcap_log
+
+    clock = [100.0]
+    monkeypatch.setattr(mcap_log.time, "monotonic", lambda: clock[0])
+    handler = mcap_log._SdkLog()
+    logger = logging.getLogger("foxglove.test-flood")
+    logger.propagate = False
+    logger.addHandler(handler)
+    try:
+        for k in range(1000):  # 1000 in 0.5 s
+            clock[0] = 100.0 + k * 0.0005
+            logger.warning("Dropping client %d: handshake failed", k)
+        clock[0] = 101.2  # the next second
+        logger.warning("Dropping client 1000: handshake failed")
+    finally:
+        logger.removeHandler(handler)
+    messages = [r.getMessage() for r in handler.records]
+    assert messages[:10] == [f"Dropping client {k}: handshake failed" for k in range(10)]
+    assert messages[10] == "990 more messages of the live server in a second, not logged"
+    assert messages[11:] == ["Dropping client 1000: handshake failed"]
+
+
+def test_a_live_view_that_fails_costs_the_log_nothing(tmp_path, monkeypatch):
+    """The live server raising while it serves its clients: the writer stops the live view, says so on /log, and
+    finishes the file (before, the exception ended the writer: the flight landed on "log writer failed")."""
+    from groundstation.flightlog import mcap_log
+
+    def broken(self, ns):
+        raise RuntimeError("the server's socket went away")
+
+    monkeypatch.setattr(mcap_log._Live, "serve", broken)
+    path = tmp_path / "live.mcap"
+    writer = mcap_log._Writer(str(path), {"config": "{}"}, live_port=LIVE_PORT + 9)
+    writer.serve()
+    writer.serve()  # the live view is off now: nothing more to fail
+    writer.finish()
+    with open(path, "rb") as fh:
+        logs = [Log.FromString(m.data).message for _, _, m in make_reader(fh).iter_messages(["/log"])]
+    assert logs == [f"live view on port {LIVE_PORT + 9} stopped: RuntimeError: the server's socket went away"]
