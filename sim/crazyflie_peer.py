@@ -76,7 +76,7 @@ class SimulatedCrazyflies(ModulePeer):
         self._links = []
 
     def _serve(self, now: float) -> None:
-        specific_force = self.specific_force()
+        acc, rpm = self.module_frames(self.specific_force()), self.module_rpms()
         for i, link in enumerate(self._links):
             while True:
                 try:
@@ -88,7 +88,7 @@ class SimulatedCrazyflies(ModulePeer):
                 for reply in link.firmware.handle(data, now):
                     with contextlib.suppress(OSError):
                         link.sock.sendto(reply, addr)
-            link.firmware.step(now, self.module_frame(i, specific_force), self.module_rpm(i))
+            link.firmware.step(now, acc[i], rpm[i])
             if link.peer is not None and link.firmware.state_due():
                 packet = link.firmware.state_packet(now, self.module_gyro(i))
                 with contextlib.suppress(OSError):  # the ground station went away: motors stop on the timeout

@@ -218,12 +218,8 @@ class ModulePeer:
         """A body-frame vector in every module's frame, (n, 3)."""
         return body_vector @ self.assembly.module_rotations
 
-    def module_rpm(self, i: int) -> np.ndarray:
-        """Module i's motor speeds as bidirectional DSHOT reports them, RPM."""
-        return self.module_rpms()[i]
-
     def module_rpms(self) -> np.ndarray:
-        """Every module's motor speeds, (n, 4) RPM."""
+        """Every module's motor speeds as bidirectional DSHOT reports them, (n, 4) RPM."""
         return np.sqrt(np.maximum(self.sim.rotor_inputs.reshape(-1, 4), 0.0)) * (60.0 / (2.0 * np.pi))
 
     def module_motors(self, i: int) -> np.ndarray:
