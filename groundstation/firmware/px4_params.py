@@ -16,6 +16,9 @@ from groundstation.firmware.params import ParamCheck, matches
 
 mav = mavutil.mavlink
 ATTEMPTS = 3
+HEARTBEAT_WAIT_S = 2.5
+"""How long to wait for a module's first heartbeat, s. PX4 sends one per second, so a 1 s window races its phase
+(CI: "no heartbeat within 1 s" from a live module); 2.5 s covers two heartbeats and a late one."""
 
 
 def _vehicle(conn, timeout: float) -> tuple[int, int] | None:
@@ -42,18 +45,19 @@ def _param_value(conn, name: str, send, timeout: float):
 
 
 def check_px4(link: str, module: int, wanted: dict[str, float], apply: bool = False,
-              timeout: float = 1.0) -> list[ParamCheck]:
+              timeout: float = 1.0, heartbeat_timeout: float = HEARTBEAT_WAIT_S) -> list[ParamCheck]:
     """Compare module ``module``'s parameters at ``link`` (a pymavlink connection string) with ``wanted``; with
-    ``apply``, write the ones that differ (with the type the module reports) and read them back."""
+    ``apply``, write the ones that differ (with the type the module reports) and read them back. ``timeout`` bounds
+    each parameter exchange, ``heartbeat_timeout`` the wait for the module's first heartbeat, s."""
     try:
         conn = mavutil.mavlink_connection(link, source_system=mw.GCS_SYSTEM_ID, source_component=mw.GCS_COMPONENT_ID)
     except Exception as exc:  # pymavlink raises per transport
         return [ParamCheck(module, link, n, v, None, note=f"cannot open: {exc}", unreachable=True)
                 for n, v in wanted.items()]
     try:
-        target = _vehicle(conn, timeout)
+        target = _vehicle(conn, heartbeat_timeout)
         if target is None:
-            return [ParamCheck(module, link, n, v, None, note=f"no heartbeat within {timeout:g} s",
+            return [ParamCheck(module, link, n, v, None, note=f"no heartbeat within {heartbeat_timeout:g} s",
                                unreachable=True) for n, v in wanted.items()]
         system, component = target
         checks = []

@@ -43,6 +43,6 @@ def test_check_apply_and_the_module_uses_the_new_value():
 
 
 def test_silent_module_is_named():
-    checks = check_px4("udpout:127.0.0.1:14649", 3, {"COM_OF_LOSS_T": 0.1}, timeout=0.3)
+    checks = check_px4("udpout:127.0.0.1:14649", 3, {"COM_OF_LOSS_T": 0.1}, heartbeat_timeout=0.3)
     assert checks[0].unreachable
     assert issues(checks) == ["module 3 (udpout:127.0.0.1:14649) does not answer: no heartbeat within 0.3 s"]
