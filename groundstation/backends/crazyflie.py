@@ -1,9 +1,10 @@
-"""Crazyflie modules over cflib's CRTP link drivers: one link per module, forces on the app channel.
+"""Crazyflie modules over CRTP links: one link per module, forces on the app channel.
 
 Each module runs the motor app (``firmware/crazyflie_app``, crazyflie-firmware >= 2026.04);
-:mod:`groundstation.backends.crtp_wire` holds the packets. A link is a cflib link driver chosen by URI
-(``radio://0/80/2M/E7E7E7E701`` for a Crazyradio, ``udp://127.0.0.1:19850`` for a simulated module), used
-directly rather than through ``cflib.crazyflie.Crazyflie``: the control loop needs one small packet per module
+:mod:`groundstation.backends.crtp_wire` holds the packets. A link is chosen by URI: cflib's radio driver for
+``radio://0/80/2M/E7E7E7E701`` (a Crazyradio), our stamped UDP link for ``udp://127.0.0.1:19850`` (a simulated
+or software-in-the-loop module, cflib's UDP wire). Links are used directly rather than through
+``cflib.crazyflie.Crazyflie``: the control loop needs one small packet per module
 per period and nothing of the connection set-up (TOC download, parameters) on its path.
 
 Sending never blocks the control loop. Over UDP a send is one datagram. cflib's radio driver takes one packet at a
@@ -17,10 +18,11 @@ sequence a state echoes (median of the newest few), and the loss from the app's 
 against the sequence numbers it saw go by over ``quality_window`` (a reordered or lost command is not accepted).
 Both are per module and reach the flight in :class:`~groundstation.backends.base.Telemetry`, whose failsafe
 policy acts on them. The module answers each batch of commands with one state echoing its newest command, and the
-loop polls once a period. A state found by a poll arrived after the poll before it, so the round trip is taken
-from the send to that earlier poll: a lower bound, which leaves out the wait for the next poll and a poll that
-came late because this process was busy (a loaded machine: the ground station's own lateness is not the link's;
-a slow link still shows in full, its states arriving periods later).
+loop polls once a period. The round trip ends when the state reached this machine, not when the loop found it:
+a busy ground station's lateness is not the link's (it shows as late control periods). Over UDP the link is our
+own (:mod:`groundstation.backends.udp_link`), read at the poll with the kernel's arrival stamp of each datagram.
+cflib's radio driver queues packets on its own thread and says nothing of their arrival: there a state found by a
+poll arrived after the poll before it, and the round trip is taken to that earlier poll (a lower bound).
 
 One flight owns a module set. Connecting takes a host lock per link (:mod:`groundstation.backends.link_lock`);
 preflight claims every module for this backend's random session id before anything else (motor app contract
@@ -58,6 +60,7 @@ from groundstation.assembly.motor_map import REQUIRES_ARMING
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rates
 from groundstation.backends.link_lock import LinkLocks
+from groundstation.backends.udp_link import StampedUdpLink
 from groundstation.errors import ArmingError, LinkError
 
 ARM_RETRY_S = 0.05
@@ -96,10 +99,16 @@ def ensure_drivers() -> None:
             _drivers_initialized = True
 
 
-def _link_driver(uri: str, on_error):
-    """An open cflib link driver for ``uri``."""
+def _link_driver(uri: str, on_error, clock):
+    """An open link for ``uri``: our own for ``udp://`` (kernel arrival stamps, see :mod:`udp_link`), cflib's
+    driver for every other kind (the radio)."""
     import cflib.crtp
 
+    if uri.startswith("udp://"):
+        try:
+            return StampedUdpLink(uri, on_error, clock)
+        except (OSError, ValueError) as exc:
+            raise LinkError(f"cannot open {uri}: {exc}") from None
     ensure_drivers()
     try:
         driver = cflib.crtp.get_link_driver(uri, link_error_callback=on_error)
@@ -169,6 +178,18 @@ class _DirectSender:
         pass
 
 
+def _receiver(driver):
+    """``driver``'s poll: () -> (packet, arrival s, or None when the driver does not know it) | None."""
+    if isinstance(driver, StampedUdpLink):
+        return driver.receive
+
+    def receive():
+        pk = driver.receive_packet(0)
+        return None if pk is None else (pk, None)
+
+    return receive
+
+
 def _sender_for(driver, name: str):
     from cflib.crtp.radiodriver import RadioDriver
 
@@ -205,9 +226,9 @@ class LinkQuality:
     """Per module, over the last ``quality_window``."""
 
     latency_s: np.ndarray
-    """Median round trip of a command (send to the state that echoes it) over the newest echoes, s; NaN until
-    measured. Each is a lower bound: from the send to the last poll that did not find the state yet (0 if the
-    state came within the period)."""
+    """Median round trip of a command (send to the arrival of the state that echoes it) over the newest echoes,
+    s; NaN until measured. Over the radio each is a lower bound: from the send to the last poll that did not find
+    the state yet (0 if the state came within the period)."""
     loss: np.ndarray
     """Fraction of commands the module did not accept (lost, reordered, duplicated); NaN until measured."""
 
@@ -218,6 +239,7 @@ class _Module:
     def __init__(self, driver, sender) -> None:
         self.driver = driver
         self.sender = sender
+        self.receive = _receiver(driver)
         self.heard = -np.inf
         """When the newest state arrived (poll time), s."""
         self.state: wire.ModuleState | None = None
@@ -300,7 +322,7 @@ class CrazyflieBackend(BackendBase):
         self._locks.acquire()
         try:
             for i, uri in enumerate(self.uris):
-                driver = _link_driver(uri, lambda msg, uri=uri: self._errors.append(f"{uri}: {msg}"))
+                driver = _link_driver(uri, lambda msg, uri=uri: self._errors.append(f"{uri}: {msg}"), self._clock)
                 self._modules.append(_Module(driver, _sender_for(driver, f"m{i}")))
         except LinkError:
             self.close()
@@ -575,7 +597,7 @@ class CrazyflieBackend(BackendBase):
     # -- measurements -------------------------------------------------------------------------------------------
     @property
     def link_errors(self) -> list[str]:
-        """Errors cflib's link drivers reported, oldest first."""
+        """Errors the links reported, oldest first."""
         return list(self._errors)
 
     @property
@@ -665,7 +687,8 @@ class CrazyflieBackend(BackendBase):
         before, self._polled = self._polled, now  # the states found now arrived after ``before``
         window = self._window
         for i, m in enumerate(self._modules):
-            while (pk := m.driver.receive_packet(0)) is not None:
+            while (got := m.receive()) is not None:
+                pk, arrival = got
                 data = bytes(pk.data)
                 if wire.same_port(pk.header, wire.APP_HEADER):
                     if data[:1] == bytes([wire.KIND_IDENTITY]):
@@ -675,7 +698,7 @@ class CrazyflieBackend(BackendBase):
                         st = wire.ModuleState.unpack(data)
                     except ValueError:
                         continue
-                    self._on_state(i, m, st, now, before)
+                    self._on_state(i, m, st, now, before if arrival is None else arrival)
                 elif wire.same_port(pk.header, wire.SUPERVISOR_HEADER):
                     m.arm_reply = wire.arm_response(data) or m.arm_reply
                 elif wire.same_port(pk.header, wire.VERSION_HEADER):
@@ -693,7 +716,9 @@ class CrazyflieBackend(BackendBase):
         if m.identity.session == self.session:
             m.token = m.identity.token
 
-    def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float, before: float) -> None:
+    def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float, arrived: float) -> None:
+        """``arrived``: when the state reached this machine (the kernel's stamp), or on a driver that does not say,
+        the poll before this one (a lower bound)."""
         previous = m.state
         restarted = False
         if previous is not None:
@@ -713,7 +738,7 @@ class CrazyflieBackend(BackendBase):
         if ours and (previous is None or st.sequence != previous.sequence):
             sent = self._sent_at[st.sequence]
             if np.isfinite(sent) and 0.0 <= now - sent < 1.0:
-                m.rtts.append(max(before - sent, 0.0))
+                m.rtts.append(max(arrived - sent, 0.0))
                 if len(m.rtts) > self.settings.latency_samples:
                     m.rtts.popleft()
         if ours:

@@ -1,5 +1,5 @@
-"""The Crazyflie backend through cflib's real UDP link driver, against simulated modules that follow the firmware
-(supervisor arming, emergency-stop lock, the motor app's state stream and gate)."""
+"""The Crazyflie backend through its UDP links (cflib's wire, :mod:`test_udp_link`), against simulated modules
+that follow the firmware (supervisor arming, emergency-stop lock, the motor app's state stream and gate)."""
 
 import time
 
@@ -74,6 +74,10 @@ def test_supervisor_arming_and_a_normal_end_that_does_not_latch():
             hold(be, np.full(8, 0.25 * U_MAX), 0.3)
             np.testing.assert_allclose(be.telemetry().motors, 0.25 * U_MAX, rtol=1e-3)
             be.emergency_stop()
+        # The stop is sent, not confirmed (a module that locked answers no more): the modules lock on their next step.
+        deadline = time.monotonic() + 2.0
+        while not all(peer.locked(i) for i in range(ASM.n)) and time.monotonic() < deadline:
+            time.sleep(0.005)
         assert all(peer.locked(i) for i in range(ASM.n))
         with backend(19840) as be, pytest.raises(ArmingError, match=r"module 0 \(udp://127.0.0.1:19840\): its "
                                                                      r"supervisor is locked"):
