@@ -97,10 +97,11 @@ def check_commands_and_state(be, peer: ModulePeer, idle_u: float = 0.0) -> None:
     expected = np.maximum([0, U_MAX, 0, 0, 0.25 * U_MAX, 0.5 * U_MAX, 0.75 * U_MAX, U_MAX], idle_u)
     np.testing.assert_allclose(tel.motors, expected, atol=2e-3 * U_MAX)
     # The body rate reassembled from the modules' IMUs (each in its own tilted frame) is the body's. The lopsided
-    # command spins the assembly up, and the state is up to one command period old: 5% slack.
+    # command spins the assembly up (~10 rad/s^2) and the state is a period or two old (seen: 8 % short, one run
+    # in four): 12 % slack. A wrong mount rotation swaps or flips axes, far outside it.
     omega = peer.sim.true_state().omega
     assert np.linalg.norm(omega) > 0.5
-    np.testing.assert_allclose(tel.gyro, omega, rtol=0.05, atol=0.05)
+    np.testing.assert_allclose(tel.gyro, omega, rtol=0.12, atol=0.05)
     with pytest.raises(ValueError):
         be.send(np.zeros(5))
     be.emergency_stop()

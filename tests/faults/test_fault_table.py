@@ -26,7 +26,7 @@ from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
 from tests.faults.table import Fault, fault, rows
 from tests.peers import ROOT, peer_process, world_priority
-from tests.runtime.test_fly import config_with, read_log, sitl_config
+from tests.runtime.test_fly import TRACK_START_S, config_with, read_log, sitl_config
 
 PEER_PORT, RELAY_PORT = 19900, 19910
 HOSTILE = "tcp/127.0.0.1:7490"
@@ -113,7 +113,7 @@ def f_bad_input_unwritable_log_dir(cli, tmp_path):
 
 
 # -- mocap integrity: a hostile publisher in another process --------------------------------------------------------
-def _hostile_flight(tmp_path, mode: str, after: float = 5.5, key_file: Path | None = None):
+def _hostile_flight(tmp_path, mode: str, after: float = 4.5, key_file: Path | None = None):
     """A dry run whose ground station listens for mocap (the simulator and the attacker connect to it), attacked
     ``after`` s after its start; with ``key_file`` the flight and its simulated mocap share that key (the attacker
     has none). Returns the flight's result and its log."""
@@ -124,7 +124,7 @@ def _hostile_flight(tmp_path, mode: str, after: float = 5.5, key_file: Path | No
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     log = tmp_path / f"{mode}.mcap"
     try:
-        res = fly(cfg, duration=6.0, log_path=log)
+        res = fly(cfg, duration=4.5, log_path=log)
     finally:
         attacker.kill()
         _, err = attacker.communicate(timeout=10)
@@ -136,7 +136,7 @@ def _landed_on_the_genuine_stream(res, log):
     assert res.phase == "done" and not res.nominal, (res.phase, res.reason)
     assert res.reason.startswith("mocap fault: a second publisher on mocap/assembly/pose")
     stats = [json.loads(d) for _, d in _records(log, "/mocap/stats")]
-    assert stats[-1]["foreign"] > 0 and stats[-1]["accepted"] > 500  # the genuine stream kept flowing
+    assert stats[-1]["foreign"] > 0 and stats[-1]["accepted"] > 300  # the genuine stream kept flowing (100 Hz)
     assert res.metrics.max_orientation_error_deg < 15.0  # landed upright
 
 
@@ -187,7 +187,7 @@ def f_mocap_dropout(cli, tmp_path):
 
     faults = Faults()
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7493"), duration=4.0, log_path=tmp_path / "d.mcap",
-              faults=faults, on_period=lambda t: setattr(faults, "mocap_paused", t > 6.0))
+              faults=faults, on_period=lambda t: setattr(faults, "mocap_paused", t > TRACK_START_S + 4.0))
     assert res.phase == "done" and res.reason.startswith("mocap stale") and not res.nominal
 
 
@@ -205,7 +205,7 @@ def f_tied_down(cli, tmp_path):
 
 
 # -- the loop ----------------------------------------------------------------------------------------------------
-def _stalling(seconds: float, at: float = 6.0):
+def _stalling(seconds: float, at: float = TRACK_START_S + 4.0):
     done = []
 
     def on_period(t):
@@ -330,7 +330,7 @@ def f_link_30ms_from_the_start(cli, tmp_path):
 def f_link_30ms_in_flight(cli, tmp_path):
     with _relayed(tmp_path, delay_ms=30, after=6.0) as cfg:
         log = tmp_path / "late.mcap"
-        res = fly(cfg, duration=8.0, log_path=log)
+        res = fly(cfg, duration=5.0, log_path=log)
     assert res.phase == "emergency" and res.reason.startswith("link degraded: module") and "> 20 ms" in res.reason
     assert _max_tilt_deg(log) < 20.0
 
@@ -339,7 +339,7 @@ def f_link_30ms_in_flight(cli, tmp_path):
 def f_link_reordering(cli, tmp_path):
     with _relayed(tmp_path, reorder=0.2, reorder_ms=10, after=6.0) as cfg:
         log = tmp_path / "reorder.mcap"
-        res = fly(cfg, duration=8.0, log_path=log)
+        res = fly(cfg, duration=5.0, log_path=log)
     assert res.phase in ("done", "emergency") and res.reason.startswith("link degraded: module")
     assert not res.nominal and _max_tilt_deg(log) < 20.0
 
@@ -442,7 +442,8 @@ def f_module_rebooted_in_flight(cli, tmp_path):
         switch.close()
 
     with _crazyflie_peer(tmp_path) as cfg:
-        res = fly(cfg, duration=6.0, log_path=tmp_path / "reboot.mcap", on_period=_once_after(4.0, reboot))
+        res = fly(cfg, duration=4.0, log_path=tmp_path / "reboot.mcap",
+                  on_period=_once_after(TRACK_START_S + 2.0, reboot))
     assert res.phase == "emergency" and not res.nominal
     assert res.reason.startswith("module 1 rebooted (its command counts started again)"), res.reason
     assert res.reason.endswith("the other modules cannot hold the assembly")
@@ -468,7 +469,8 @@ def _intruder(tokens):
        "the module drops its commands (not its owner's); the flight completes")
 def f_second_sender_in_flight(cli, tmp_path):
     with _crazyflie_peer(tmp_path) as cfg:
-        res = fly(cfg, duration=6.0, log_path=tmp_path / "intruder.mcap", on_period=_once_after(4.0, _intruder([0])))
+        res = fly(cfg, duration=4.0, log_path=tmp_path / "intruder.mcap",
+                  on_period=_once_after(TRACK_START_S + 2.0, _intruder([0])))
     assert res.phase == "done" and res.nominal and res.metrics.pos_rmse_m < 0.03, res.reason
 
 
@@ -476,8 +478,8 @@ def f_second_sender_in_flight(cli, tmp_path):
        "the module named once it applies one, motors off (the V cannot fly on one module), exit 1")
 def f_token_guessing_sender_in_flight(cli, tmp_path):
     with _crazyflie_peer(tmp_path) as cfg:
-        res = fly(cfg, duration=6.0, log_path=tmp_path / "guess.mcap",
-                  on_period=_once_after(4.0, _intruder(list(range(1, 256)))))
+        res = fly(cfg, duration=4.0, log_path=tmp_path / "guess.mcap",
+                  on_period=_once_after(TRACK_START_S + 2.0, _intruder(list(range(1, 256)))))
     assert res.phase == "emergency" and not res.nominal
     assert res.reason.startswith("module 0 takes commands from another sender (it applies sequence "), res.reason
 

@@ -19,7 +19,11 @@ from groundstation.runtime.fly import Faults, fly
 from tests.faults.table import Fault, fault, rows
 from tests.faults.test_fault_table import _records
 from tests.peers import ROOT, peer_process
-from tests.runtime.test_fly import config_with, read_log, sitl_config
+from tests.runtime.test_fly import TRACK_START_S, config_with, read_log, sitl_config
+
+LANDING = {"duration = 16.0\n": "duration = 16.0\nlanding_s = 1.5\n"}
+"""The rows that judge a landing (upright, on the ground) land in 1.5 s, not the test flights' 1 s: one gyro or
+no mocap on a 1 m/s descent tipped the V 16 deg."""
 
 PEER_PORT = 19920
 MOCAP_PORT, RELAY_PORT = 7533, 7534
@@ -36,7 +40,7 @@ def _truth(log) -> list[tuple[float, str, float, float]]:
             for _, m in motors if "truth" in m]
 
 
-def _injected(faults: Faults, name: str, value, at: float = 4.5):
+def _injected(faults: Faults, name: str, value, at: float = TRACK_START_S + 2.5):
     """An ``on_period`` hook that sets ``faults.name = value`` in the first period from ``at`` s (in tracking), and
     the list that then holds that period's time."""
     when: list[float] = []
@@ -74,7 +78,7 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
         cut = []
 
         def on_period(t):
-            if t >= 4.5 and not cut:
+            if t >= TRACK_START_S + 2.5 and not cut:
                 cut.append(t)
                 relay.send_signal(signal.SIGUSR1)
 
@@ -97,15 +101,16 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
 def f_mocap_blackout_1s(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "blackout.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7535"), duration=4.0, log_path=log, faults=faults,
-              on_period=lambda t: setattr(faults, "mocap_paused", 4.5 <= t < 5.5))
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7535", **LANDING), duration=4.0, log_path=log,
+              faults=faults,
+              on_period=lambda t: setattr(faults, "mocap_paused", TRACK_START_S + 2.5 <= t < TRACK_START_S + 3.5))
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
     truth = _truth(log)
     assert max(tilt for *_, tilt in truth) < 15.0
     ground = truth[0][2]
     assert abs(truth[-1][2] - ground) < 0.03  # landed, not dropped from the air
     _, _, _, motors = read_log(log)
-    after = [m["estimate"]["position_sigma_m"] for _, m in motors if "estimate" in m and m["t_s"] > 5.8]
+    after = [m["estimate"]["position_sigma_m"] for _, m in motors if "estimate" in m and m["t_s"] > TRACK_START_S + 3.8]
     assert after and max(after) < 0.01  # the poses are back: the uncertainty is mocap's again
 
 
@@ -115,8 +120,8 @@ def f_mocap_frozen_pose(cli, tmp_path):
     faults = Faults()
     on_period, frozen = _injected(faults, "mocap_frozen", True)
     log = tmp_path / "frozen.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536"), duration=4.0, log_path=log, faults=faults,
-              on_period=on_period)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536", **LANDING), duration=4.0, log_path=log,
+              faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("mocap fault: every pose rejected for ")
     assert "a frozen stream" in res.reason
     named = [t for t, _, text in res.events if "landing: mocap fault" in text]
@@ -132,8 +137,8 @@ def f_gyro_failed(cli, tmp_path):
     faults = Faults()
     on_period, failed = _injected(faults, "gyro_failed", 1)
     log = tmp_path / "gyro.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537"), duration=4.0, log_path=log, faults=faults,
-              on_period=on_period)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537", **LANDING), duration=4.0, log_path=log,
+              faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("gyro fault: module 1's gyro disagrees with the other's")
     assert "left out of the body rate" in res.reason
     named = [t for t, _, text in res.events if "landing: gyro fault" in text]

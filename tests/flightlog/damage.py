@@ -40,7 +40,7 @@ def flight_log() -> Path:
     atexit.register(shutil.rmtree, tmp, True)
     cfg = config_with(tmp, endpoint=ENDPOINT, **{'kind = "figure8"': 'kind = "hover"'})
     log = tmp / "flight.mcap"
-    res = fly(cfg, duration=1.0, log_path=log)
+    res = fly(cfg, duration=2.5, log_path=log)  # 5 s in all: damage spread over it leaves >10 damaged stretches
     assert res.phase == "done", res.reason
     return log
 

@@ -34,12 +34,19 @@ def read_log(path):
     return counts, meta, logs, motors
 
 
+TAKEOFF_S, SETTLE_S, LANDING_S = 1.0, 0.25, 1.0
+"""The test flights' phases (s), against the shipped 3, 1.5 and 3 s: the quintic take-off to 1 m then peaks at
+5.8 m/s^2 (the V hovers at 0.38 u_max: it has the thrust), and the suite flies ~100 times."""
+TRACK_START_S = TAKEOFF_S + SETTLE_S
+"""Flight time at which tracking starts in a test flight, s (faults injected "in tracking" are timed from it)."""
+
+
 def quick_phases(text: str) -> str:
-    """A flight config whose take-off and landing take 1.5 s instead of the shipped 3 s, whose settle and hold
-    take 0.5 s instead of 1.5 s, and whose preflight watches the mocap stream 0.3 s instead of 1 s (unless it sets
-    them): the suite flies ~100 times, and what the tests look at happens in tracking or at its end (the rows about
-    a second mocap publisher in preflight keep the shipped watch). Tracking starts at 2 s."""
-    for key, value in (("takeoff_s", 1.5), ("landing_s", 1.5), ("settle_s", 0.5)):
+    """A flight config whose take-off, settle (and hold) and landing take ``TAKEOFF_S``, ``SETTLE_S`` and
+    ``LANDING_S``, and whose preflight watches the mocap stream 0.3 s instead of 1 s (unless it sets them): what
+    the tests look at happens in tracking or at its end (the rows about a second mocap publisher in preflight keep
+    the shipped watch). Tracking starts at 1.25 s."""
+    for key, value in (("takeoff_s", TAKEOFF_S), ("landing_s", LANDING_S), ("settle_s", SETTLE_S)):
         if key not in text:
             text = text.replace("duration = 16.0\n", f"duration = 16.0\n{key} = {value}\n")
     if "preflight_watch_s" not in text:
@@ -77,7 +84,7 @@ def test_short_figure8_end_to_end(tmp_path):
     for topic in ("/mocap/assembly", "/state/pose", "/tf", "/scene", "/control", "/log", "/loop/timing",
                   "/backend/telemetry", "/flight/summary"):
         assert counts.get(topic, 0) > 0, topic
-    flown_s = 1.5 + 0.5 + 4.0 + 1.5  # take-off, settle, tracking, landing (quick_phases): the least the loop runs
+    flown_s = TAKEOFF_S + SETTLE_S + 4.0 + LANDING_S  # (quick_phases): the least the loop runs
     assert counts["/mocap/assembly"] > 100 * flown_s  # ~100 Hz over the whole flight
     assert "config" in meta and "code_version" in meta and "assembly" in meta
     assert json.loads(meta["config"]["value"])["rate_hz"] == 250
@@ -126,9 +133,9 @@ def test_operator_land_request(tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7465")
     req = Requests()
     res = fly(cfg, duration=8.0, log_path=tmp_path / "f.mcap", requests=req,
-              on_period=lambda t: req.land.set() if t > 5.0 else None)
+              on_period=lambda t: req.land.set() if t > TRACK_START_S + 3.0 else None)
     assert res.phase == "done" and "operator land" in res.reason
-    assert res.metrics.simulated_s < 5.0 + 3.0 + 1.0
+    assert res.metrics.simulated_s < TRACK_START_S + 3.0 + 3.0 + 1.0
 
 
 def test_bad_inputs_never_arm(tmp_path):
@@ -209,11 +216,11 @@ def test_hardware_backend_flies_twice_through_simulated_modules(sim_peer, tmp_pa
     """Two flights in a row against the same simulated modules: a normal landing disarms without latching the
     emergency stop, so the second flight needs no reboot."""
     cfg, _, kind = sim_peer
-    first = fly(cfg, duration=2.0, log_path=tmp_path / "first.mcap")
+    first = fly(cfg, duration=1.0, log_path=tmp_path / "first.mcap")
     assert first.phase == "done" and first.reason == ""
     log = tmp_path / "cf.mcap"
     statuses = []
-    res = fly(cfg, duration=3.0, log_path=log, on_status=statuses.append)
+    res = fly(cfg, duration=2.0, log_path=log, on_status=statuses.append)
     assert res.phase == "done" and res.reason == ""
     track = [s for s in statuses if s.phase == "track"]
     assert track and all(s.battery_v == pytest.approx(4.0) and 0.2 < s.worst_motor <= 1.0 for s in track)
@@ -221,7 +228,8 @@ def test_hardware_backend_flies_twice_through_simulated_modules(sim_peer, tmp_pa
     assert res.metrics.pos_rmse_m < 0.03  # from mocap: no physics truth in this process
     counts, meta, logs, motors = read_log(log)
     assert json.loads(meta["config"]["value"])["backend"]["kind"] == kind
-    assert counts["/mocap/assembly"] > 100 * (1.5 + 0.5 + 3.0 + 1.5) and counts["/backend/telemetry"] > 0
+    assert counts["/mocap/assembly"] > 100 * (TAKEOFF_S + SETTLE_S + 2.0 + LANDING_S)
+    assert counts["/backend/telemetry"] > 0
     airborne = [m for _, m in motors if m["phase"] == "track"]
     assert airborne and min(np.mean(commands(m)) for m in airborne) > 0.2  # hover needs ~0.38 of u_max
     assert motors[-1][1].get("motors_off") and np.max(commands(motors[-1][1])) == 0.0
@@ -230,7 +238,7 @@ def test_hardware_backend_flies_twice_through_simulated_modules(sim_peer, tmp_pa
 def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
     cfg, peer, kind = sim_peer
     log = tmp_path / "loss.mcap"
-    res = fly(cfg, duration=6.0, log_path=log, on_period=lambda t: peer.kill() if t > 4.0 else None)
+    res = fly(cfg, duration=4.0, log_path=log, on_period=lambda t: peer.kill() if t > TRACK_START_S + 2.0 else None)
     assert res.phase == "emergency"
     if kind == "crazyflie":  # the Crazyflie backend names the modules it no longer hears
         assert "module 0 sends no state (for " in res.reason and "module 1 sends no state (for " in res.reason
@@ -240,7 +248,8 @@ def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
     off = [m for _, m in motors if m.get("motors_off")]
     last_flying = [m for _, m in motors if not m.get("motors_off")][-1]
     assert len(off) == 1 and np.max(commands(off[0])) == 0.0 and motors[-1][1] is off[0]
-    assert off[0]["t_s"] > last_flying["t_s"] > 4.0  # motors off in the period the loss is seen, after the kill
+    # motors off in the period the loss is seen, after the kill
+    assert off[0]["t_s"] > last_flying["t_s"] > TRACK_START_S + 2.0
     assert any(b"sends no state" in data or b"backend link lost" in data for _, data in logs)
 
 
