@@ -209,7 +209,7 @@ class CrazyflieSettings:
     its motors up through a 200 ms RPM check and gives up after 2 s."""
     command_period: float = 0.004
     """The flight's control period: preflight streams and polls at it, so the round trips it measures are the
-    flight's (they include the wait for the next poll), s."""
+    flight's (over the radio they end at a poll), s."""
     quality_window: float = 0.5
     """The loss is taken over the states of this last stretch, s."""
     latency_samples: int = 5

@@ -20,10 +20,11 @@ from cflib.crtp.crtpstack import CRTPPacket
 
 SO_TIMESTAMPNS = 35
 """Linux's ``SO_TIMESTAMPNS`` (also the ``SCM_`` control-message type); Python's socket module does not export
-it. Where the option is refused the arrival is the read time (as with cflib's driver)."""
+it. Where the option is refused the arrival is the read time (an upper bound: it includes the wait for the
+poll)."""
 _TIMESPEC = struct.Struct("@ll")
-MAX_DATAGRAM = 64
-"""A CRTP packet is at most 32 bytes; anything longer is not one."""
+MAX_PACKET = 32
+"""Bytes of the longest CRTP packet (header and payload); a longer datagram is not one and is dropped."""
 
 
 class StampedUdpLink:
@@ -31,7 +32,7 @@ class StampedUdpLink:
 
     ``receive()`` returns the next packet with its arrival time on ``clock`` (s), or None when none is waiting.
     ``send_packet`` and ``close`` are cflib's driver calls; errors (the peer's port closed) go to ``on_error``
-    once per kind, not per datagram."""
+    once per kind for the link's life, not per datagram. After ``close`` it receives nothing and sends nothing."""
 
     def __init__(self, uri: str, on_error, clock=time.monotonic) -> None:
         parsed = urlparse(uri)
@@ -41,18 +42,25 @@ class StampedUdpLink:
         self._on_error = on_error
         self._clock = clock
         self._reported: set[str] = set()
+        self._closed = False
         self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            self.socket.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-            self.stamped = True
-            """The kernel stamps arrivals (False: the read time stands in)."""
-        except OSError:
-            self.stamped = False
-        self.socket.connect((parsed.hostname, parsed.port))
-        self.socket.setblocking(False)
+            try:
+                self.socket.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self.stamped = True
+                """The kernel stamps arrivals (False: the read time stands in)."""
+            except OSError:
+                self.stamped = False
+            self.socket.connect((parsed.hostname, parsed.port))  # a connected socket takes datagrams from it only
+            self.socket.setblocking(False)
+        except OSError:  # an unknown host, an address of another family: the socket is not left open
+            self.socket.close()
+            raise
         self._ancillary = socket.CMSG_SPACE(_TIMESPEC.size)
 
     def send_packet(self, pk: CRTPPacket) -> None:
+        if self._closed:
+            return
         try:
             self.socket.send(bytes([pk.header]) + bytes(pk.data))
         except OSError as exc:  # no route, the peer's port closed (ICMP), a full buffer: the packet is lost
@@ -60,18 +68,21 @@ class StampedUdpLink:
 
     def receive(self) -> tuple[CRTPPacket, float] | None:
         """The next waiting packet and when it arrived (s, on the link's clock); None if none waits."""
-        while True:
+        while not self._closed:
             try:
-                data, ancdata, _, _ = self.socket.recvmsg(MAX_DATAGRAM, self._ancillary)
+                data, ancdata, flags, _ = self.socket.recvmsg(MAX_PACKET, self._ancillary)
             except (BlockingIOError, InterruptedError):
                 return None
-            except OSError as exc:  # ECONNREFUSED from an earlier send: reported, and the socket reads on
+            except ConnectionRefusedError as exc:  # from an earlier send (ICMP): reported, and the socket reads on
                 self._error(exc)
                 continue
-            if not data:
+            except OSError as exc:  # anything else will not go away by reading again
+                self._error(exc)
+                return None
+            if not data or flags & socket.MSG_TRUNC:  # empty, or longer than any CRTP packet
                 continue
-            arrival = self._arrival(ancdata)
-            return CRTPPacket(data[0], data[1:]), arrival
+            return CRTPPacket(data[0], data[1:]), self._arrival(ancdata)
+        return None
 
     def receive_packet(self, wait: float = 0) -> CRTPPacket | None:
         """cflib's driver call (never waits): the next packet, without its arrival."""
@@ -79,15 +90,18 @@ class StampedUdpLink:
         return got[0] if got is not None else None
 
     def close(self) -> None:
+        self._closed = True
         self.socket.close()
 
     def _arrival(self, ancdata) -> float:
+        now = self._clock()
         for level, kind, payload in ancdata:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= _TIMESPEC.size:
                 sec, nsec = _TIMESPEC.unpack_from(payload)
-                # The stamp is on the realtime clock; the offset to ``clock`` is taken now (microseconds apart).
-                return sec + nsec * 1e-9 - (time.time() - self._clock())
-        return self._clock()
+                # The stamp is on the realtime clock; the offset to ``clock`` is taken now. A step of the realtime
+                # clock between the stamp and now would move it: never later than now (the read's own bound).
+                return min(sec + nsec * 1e-9 - (time.time() - now), now)
+        return now
 
     def _error(self, exc: OSError) -> None:
         kind = type(exc).__name__

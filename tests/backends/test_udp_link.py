@@ -28,6 +28,8 @@ def test_datagrams_are_cflibs_wire():
             link.send_packet(pk)
             got.append(server.recvfrom(64))
         assert got[0][0] == got[1][0] == bytes([0x3E]) + bytes(range(30))
+        server.sendto(b"", got[0][1])  # empty, and longer than any CRTP packet: not packets, dropped
+        server.sendto(bytes(33), got[0][1])
         server.sendto(b"\x2c\x01\x02", got[0][1])  # an answer to our link
         deadline = time.monotonic() + 2.0
         while (answer := ours.receive()) is None and time.monotonic() < deadline:
@@ -54,11 +56,12 @@ def test_the_arrival_is_the_kernels_not_the_read():
         server.sendto(b"\x2c\x07", addr)
         time.sleep(0.2)  # the reader is busy; the datagram waits in the kernel
         read = time.monotonic()
-        pk, arrival = link.receive()
-        assert bytes(pk.data) == b"\x07"
+        got = link.receive()
+        assert got is not None and bytes(got[0].data) == b"\x07", got
+        arrival = got[1]
         # The stamp lies between the send and the read, and the 0.2 s the datagram waited are not in it. (One-sided
         # bounds: a loaded machine only lengthens the sleep.) 1 ms allows for the realtime-to-monotonic offset.
-        assert sent - 1e-3 <= arrival <= read - 0.19
+        assert sent - 1e-3 <= arrival <= read - 0.19, (sent, arrival, read)
     finally:
         link.close()
         server.close()
@@ -84,3 +87,16 @@ def test_not_a_udp_uri():
         StampedUdpLink("radio://0/80/2M", print)
     with pytest.raises(ValueError, match="not a udp://host:port URI"):
         StampedUdpLink("udp://127.0.0.1", print)
+
+
+def test_a_closed_link_neither_reads_nor_sends():
+    server, uri = _server()
+    errors = []
+    link = StampedUdpLink(uri, errors.append)
+    link.close()
+    try:
+        assert link.receive() is None and link.receive_packet(0) is None  # returns (it once spun on EBADF)
+        link.send_packet(CRTPPacket(0x3E, b"\x00"))
+        assert errors == []
+    finally:
+        server.close()
