@@ -100,3 +100,30 @@ def test_a_closed_link_neither_reads_nor_sends():
         assert errors == []
     finally:
         server.close()
+
+
+def test_a_preemption_between_the_clock_reads_does_not_move_the_arrival(monkeypatch):
+    """The realtime-to-monotonic offset is read again when the thread lost its CPU between two clock reads (the
+    first realtime read here comes 50 ms late, as when a host takes the CPU away)."""
+    server, uri = _server()
+    link = StampedUdpLink(uri, print)
+    try:
+        link.send_packet(CRTPPacket(0xFF, b""))
+        _, addr = server.recvfrom(64)
+        sent = time.monotonic()
+        server.sendto(b"\x2c\x07", addr)
+        time.sleep(0.01)
+        real_time, late = time.time, [True]
+
+        def preempted() -> float:
+            if late.pop() if late else False:
+                time.sleep(0.05)
+            return real_time()
+
+        monkeypatch.setattr(time, "time", preempted)
+        got = link.receive()
+        monkeypatch.undo()
+        assert got is not None and got[1] >= sent - 1e-3, (sent, got)  # 50 ms early had the late read counted
+    finally:
+        link.close()
+        server.close()

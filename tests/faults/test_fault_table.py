@@ -234,11 +234,17 @@ def f_loop_stall_50ms(cli, tmp_path):
     assert any(text.startswith("loop stalled 5") for _, level, text in res.events if level == "warning")
 
 
-@fault("a CPU hog on the second core during the README's main command", "the flight completes (exit 0)")
+@fault("a CPU hog on the second core during the README's main command", "the flight completes (exit 0); if the "
+       "host stops the machine's CPUs for ~100 ms (seen by a top-priority probe on each), motors off on the stall")
 def f_cpu_hog(cli, tmp_path):
     cpu = max(os.sched_getaffinity(0))
     hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{cpu}}})\n"
                                                   "while True: pass"])
+    # A top-priority probe pinned to each CPU sees the machine itself stop: this 2-core VM's host takes its CPUs
+    # away for ~100 ms under load (2026-12-02: the probes held off 100-101 ms during flights).
+    probes = [subprocess.Popen([sys.executable, "-m", "benchmarks.cpu_stall_probe", "--cpu", str(c), "--duration",
+                                "120", "--threshold-ms", "50"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+              for c in sorted(os.sched_getaffinity(0))]
     try:
         cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7495")
         run = subprocess.run([sys.executable, "-m", "groundstation", "fly", str(cfg), "--duration", "4",
@@ -247,6 +253,11 @@ def f_cpu_hog(cli, tmp_path):
     finally:
         hog.kill()
         hog.wait()
+        for probe in probes:
+            probe.terminate()
+        frozen = [length for probe in probes for _, length in json.loads(probe.communicate(timeout=10)[0])["stalls"]]
+    if run.returncode != 0 and "loop stalled" in run.stderr and max(frozen, default=0.0) >= 0.09:
+        return  # the machine stopped for ~100 ms, not the loop: stopping the motors is the right answer to that
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout)["phase"] == "done"
 
