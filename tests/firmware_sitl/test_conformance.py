@@ -181,6 +181,9 @@ def test_one_ground_station_owns_the_modules_and_each_names_itself(kind, tmp_pat
         assert max(np.degrees(np.arccos(np.clip(np.sum(first.module_gravity() * up, axis=1), -1, 1)))) < 3.0
         flying = threading.Thread(target=hold, args=(first, u, 2.5), daemon=True)
         flying.start()
+        # Flying means armed commands streaming: arm() ends on disarmed zeros, and with links that open at once the
+        # second claim could reach the modules before the thread's first armed command (a free module is claimed).
+        assert wait_for(lambda: all(s is not None and s.armed for s in first.module_states()))
         monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "other-host"))
         with m.backend() as second:
             issues = second.preflight().issues
