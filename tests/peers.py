@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import os
 import subprocess
 import sys
@@ -37,6 +38,38 @@ def world_priority() -> None:
     stop), which no ground station meets in a lab."""
     with contextlib.suppress(PermissionError, OSError):
         os.nice(-10)
+
+
+HOST_FREEZE_S = 0.09
+"""A CPU held off this long by the host, under a top-priority probe no guest thread can delay, is the machine
+stopping, not the ground station: this 2-core VM's hypervisor takes its CPUs away for ~100 ms under load
+(2026-12-02: the probes held off 100-101 ms during real-firmware flights, the loop stalls were 104-111 ms)."""
+MACHINE_STOPS = ("loop stalled", "no state")
+"""How a flight ends when the machine under it stops for ~100 ms: the loop's stall bound or a module link's
+timeout (both 100 ms: real modules stop their motors after 100 ms without commands)."""
+
+
+@contextlib.contextmanager
+def host_freezes():
+    """``benchmarks.cpu_stall_probe`` on each CPU while the block runs; the list it yields is filled on exit with
+    the length of every stall of a CPU over 50 ms, s."""
+    probes = [subprocess.Popen([sys.executable, "-m", "benchmarks.cpu_stall_probe", "--cpu", str(c), "--duration",
+                                "900", "--threshold-ms", "50"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+              for c in sorted(os.sched_getaffinity(0))]
+    frozen: list[float] = []
+    try:
+        yield frozen
+    finally:
+        for probe in probes:
+            probe.terminate()
+        frozen += [length for probe in probes for _, length in json.loads(probe.communicate(timeout=10)[0])["stalls"]]
+
+
+def stopped_by_host(reason: str, frozen: list[float]) -> bool:
+    """A flight that ended on ``reason`` was stopped by the machine, not by a fault of ours: it ended on a stall
+    or a silent link while a probe saw a CPU stop for :data:`HOST_FREEZE_S` or more. Stopping the motors is the
+    right answer to that (the ground station cannot tell a frozen machine from a frozen loop)."""
+    return any(stop in reason for stop in MACHINE_STOPS) and max(frozen, default=0.0) >= HOST_FREEZE_S
 
 
 def peer_process(tmp_path: Path, *args: str) -> subprocess.Popen:
