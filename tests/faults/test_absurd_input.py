@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.faults.table import Fault, fault, rows
+from tests.faults.table import Fault, bad_input, rows
 from tests.peers import ROOT
 from tests.runtime.test_fly import config_with
 
@@ -74,7 +74,7 @@ for _name, _what, _changes, *_fragments in CONFIG_KEYS:
     def _case(cli, tmp_path, changes=_changes, fragments=_fragments):
         _fly_refused(cli, tmp_path, config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **changes), *fragments)
     _case.__name__ = f"f_absurd_{_name}"
-    fault(f"fly with {_what}", f"exit 2 naming {_fragments[0].split(':')[0]}, never armed")(_case)
+    bad_input(f"fly with {_what}", f"exit 2 naming {_fragments[0].split(':')[0]}, never armed")(_case)
 
 
 # -- options: nan, inf and values beyond the bounds ------------------------------------------------------------------
@@ -95,7 +95,7 @@ for _name, _args, _fragment in OPTIONS:
         _refused(cli, args, fragment)
     _case.__name__ = f"f_absurd_{_name}"
     _shown = " ".join(Path(a).name if "/" in a else a for a in _args)
-    fault(_shown, f"exit 2, one line naming {_args[-2]}")(_case)
+    bad_input(_shown, f"exit 2, one line naming {_args[-2]}")(_case)
 
 
 # -- files that are not text where text belongs ----------------------------------------------------------------------
@@ -112,50 +112,50 @@ def _mcap(tmp_path) -> Path:
     return path
 
 
-@fault("fly with an MCAP log given as the flight config", "exit 2 naming the file: not a text file")
+@bad_input("fly with an MCAP log given as the flight config", "exit 2 naming the file: not a text file")
 def f_absurd_flight_config_is_an_mcap_log(cli, tmp_path):
     mcap = _mcap(tmp_path)
     _fly_refused(cli, tmp_path, mcap, "not a text file")
 
 
-@fault("fly /dev/zero", "exit 2 naming /dev/zero at once (one read of 4 MiB)")
+@bad_input("fly /dev/zero", "exit 2 naming /dev/zero at once (one read of 4 MiB)")
 def f_absurd_flight_config_is_dev_zero(cli, tmp_path):
     _fly_refused(cli, tmp_path, Path("/dev/zero"), "not a text file")
 
 
-@fault("fly with a flight config of 5 MiB", "exit 2 naming the file: larger than 4 MiB")
+@bad_input("fly with a flight config of 5 MiB", "exit 2 naming the file: larger than 4 MiB")
 def f_absurd_flight_config_of_5_mib(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
     cfg.write_text(cfg.read_text() + "#" * (5 * 2**20))
     _fly_refused(cli, tmp_path, cfg, "larger than 4 MiB")
 
 
-@fault("fly with a flight config in Latin-1", "exit 2 naming the file: not UTF-8")
+@bad_input("fly with a flight config in Latin-1", "exit 2 naming the file: not UTF-8")
 def f_absurd_flight_config_not_utf8(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
     cfg.write_bytes(cfg.read_bytes().replace(b'body = "assembly"', b'body = "assembl\xe9"'))
     _fly_refused(cli, tmp_path, cfg, "not UTF-8 text")
 
 
-@fault("fly with assembly = /dev/zero", "exit 2 naming the config, assembly and /dev/zero")
+@bad_input("fly with assembly = /dev/zero", "exit 2 naming the config, assembly and /dev/zero")
 def f_absurd_assembly_is_dev_zero(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **{TOY_ASSEMBLY: "/dev/zero"})
     _fly_refused(cli, tmp_path, cfg, "assembly: /dev/zero: not a text file")
 
 
-@fault("simulate an MCAP log given as the assembly", "exit 2 naming the file: not a text file")
+@bad_input("simulate an MCAP log given as the assembly", "exit 2 naming the file: not a text file")
 def f_absurd_simulate_assembly_is_an_mcap_log(cli, tmp_path):
     mcap = _mcap(tmp_path)
     _refused(cli, ("simulate", str(mcap)), f"{mcap}: not a text file")
 
 
-@fault("optimize with the Python executable given as the task", "exit 2 naming the file: not a text file")
+@bad_input("optimize with the Python executable given as the task", "exit 2 naming the file: not a text file")
 def f_absurd_task_is_a_binary(cli, tmp_path):
     binary = str(Path(sys.executable).resolve())
     _refused(cli, ("optimize", binary, "--topology", "oS"), f"{binary}: not a text file")
 
 
-@fault("design with /dev/zero as the task", "exit 2 naming /dev/zero at once")
+@bad_input("design with /dev/zero as the task", "exit 2 naming /dev/zero at once")
 def f_absurd_task_is_dev_zero(cli, tmp_path):
     _refused(cli, ("design", "/dev/zero"), "/dev/zero: not a text file")
 

@@ -16,7 +16,7 @@ from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
 from tests.disks import full, tiny_disk
-from tests.faults.table import Fault, fault, rows
+from tests.faults.table import Fault, process_fault, rows
 from tests.flightlog.damage import Expected, chunks_of, expected, flight_log, flipped, middle_of, spread, total_messages
 
 
@@ -53,10 +53,11 @@ def _recovered(cli, tmp_path: Path, log: Path, want: Expected) -> dict:
     return counts
 
 
-@fault("one bit flipped in the middle of a chunk of a flight log",
-       "replay: one line naming the chunk's bytes and the messages it held per channel, every other period "
-       "analysed, exit 0; log recover: every other message in a valid finalized copy, the chunk and its messages "
-       "counted as dropped (CRC), the source not called complete")
+@process_fault("one bit flipped in the middle of a chunk of a flight log",
+               "replay: one line naming the chunk's bytes and the messages it held per channel, every other period "
+               "analysed, exit 0; log recover: every other message in a valid finalized copy, the chunk and its "
+               "messages "
+               "counted as dropped (CRC), the source not called complete")
 def f_log_one_bit_flipped(cli, tmp_path):
     log = flight_log()
     chunk = chunks_of(log)[len(chunks_of(log)) // 2]
@@ -68,9 +69,9 @@ def f_log_one_bit_flipped(cli, tmp_path):
     assert dropped["chunks"] == 1 and dropped["messages"] == sum(chunk.topics.values())
 
 
-@fault("64 bytes flipped, spread evenly over the middle 90 % of a flight log",
-       "replay analyses every period of the intact chunks, exit 0, ten damaged stretches named and a line of "
-       "totals; log recover writes every message of the intact chunks and counts the rest by reason")
+@process_fault("64 bytes flipped, spread evenly over the middle 90 % of a flight log",
+               "replay analyses every period of the intact chunks, exit 0, ten damaged stretches named and a line of "
+               "totals; log recover writes every message of the intact chunks and counts the rest by reason")
 def f_log_64_bytes_flipped(cli, tmp_path):
     log = flight_log()
     offsets = spread(log)
@@ -82,9 +83,9 @@ def f_log_64_bytes_flipped(cli, tmp_path):
     assert dropped["messages"] == total_messages(log) - want.messages
 
 
-@fault("a flight log cut short in the middle of a chunk (no summary, no footer)",
-       "replay and log recover read every chunk before the cut; the cut chunk named as truncated, messages "
-       "unknown; exit 0")
+@process_fault("a flight log cut short in the middle of a chunk (no summary, no footer)",
+               "replay and log recover read every chunk before the cut; the cut chunk named as truncated, messages "
+               "unknown; exit 0")
 def f_log_truncated(cli, tmp_path):
     log = flight_log()
     cut = middle_of(chunks_of(log)[len(chunks_of(log)) // 3])
@@ -107,28 +108,28 @@ def _summary_or_footer(cli, tmp_path, where: str) -> None:
         "summary": {"chunks": 0, "messages": 0}}}
 
 
-@fault("a byte of a flight log's footer flipped",
-       "every message read from the data section; the summary named as damaged and not used; log recover: "
-       "nothing dropped, the source not called complete")
+@process_fault("a byte of a flight log's footer flipped",
+               "every message read from the data section; the summary named as damaged and not used; log recover: "
+               "nothing dropped, the source not called complete")
 def f_log_footer_damaged(cli, tmp_path):
     _summary_or_footer(cli, tmp_path, "footer")
 
 
-@fault("a byte of a flight log's summary section flipped",
-       "as for the footer: every message read, the summary named as damaged, nothing dropped")
+@process_fault("a byte of a flight log's summary section flipped",
+               "as for the footer: every message read, the summary named as damaged, nothing dropped")
 def f_log_summary_damaged(cli, tmp_path):
     _summary_or_footer(cli, tmp_path, "summary")
 
 
-@fault("log recover onto a full disk (/dev/full)", "one line naming the output file, exit 2, no traceback")
+@process_fault("log recover onto a full disk (/dev/full)", "one line naming the output file, exit 2, no traceback")
 def f_log_recover_full_disk(cli, tmp_path):
     code, out, err = cli("log", "recover", str(flight_log()), str(full(tmp_path / "r.mcap")))
     assert code == 2 and out == "" and err == f"groundstation: error: {tmp_path / 'r.mcap'}: cannot write: No space " \
                                               f"left on device\n", err
 
 
-@fault("log recover onto a 64 KiB tmpfs that fills up part way through the copy",
-       "one line naming the output file, exit 2, no traceback")
+@process_fault("log recover onto a 64 KiB tmpfs that fills up part way through the copy",
+               "one line naming the output file, exit 2, no traceback")
 def f_log_recover_tiny_disk(cli, tmp_path):
     with tiny_disk(tmp_path / "disk") as disk:
         code, out, err = cli("log", "recover", str(flight_log()), str(disk / "r.mcap"))
@@ -136,8 +137,8 @@ def f_log_recover_tiny_disk(cli, tmp_path):
     assert err.count("\n") == 1, err
 
 
-@fault("replay --csv and --plot onto a full disk (/dev/full)",
-       "one line naming the file, exit 2, no traceback")
+@process_fault("replay --csv and --plot onto a full disk (/dev/full)",
+               "one line naming the file, exit 2, no traceback")
 def f_replay_outputs_full_disk(cli, tmp_path):
     log = flight_log()
     full(tmp_path / f"{log.stem}_control.csv")
@@ -147,7 +148,7 @@ def f_replay_outputs_full_disk(cli, tmp_path):
     assert code == 2 and err.count("\n") == 1 and "fig9.png: cannot write: No space left on device" in err, err
 
 
-@fault("enumerate --out onto a full disk (/dev/full)", "one line naming the file, exit 2, no traceback")
+@process_fault("enumerate --out onto a full disk (/dev/full)", "one line naming the file, exit 2, no traceback")
 def f_enumerate_out_full_disk(cli, tmp_path):
     code, _, err = cli("enumerate", "4", "--out", str(full(tmp_path / "c.json")))
     assert code == 2 and err == f"groundstation: error: {tmp_path / 'c.json'}: cannot write: No space left on " \

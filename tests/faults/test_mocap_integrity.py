@@ -10,7 +10,7 @@ import json
 import pytest
 
 from groundstation.mocap.auth import write_key_file
-from tests.faults.table import Fault, fault, rows
+from tests.faults.table import Fault, bad_input, lying_mocap, rows
 from tests.faults.test_fault_table import _hostile_flight, _records
 from tests.runtime.test_fly import config_with
 
@@ -25,10 +25,12 @@ def _attacked(tmp_path, mode: str, keyed: bool):
     return res, json.loads(_records(log, "/mocap/stats")[-1][1])
 
 
-@fault("mocap: a publisher copying the genuine source id, dragging the genuine pose off at 0.5 m/s, mid-flight "
-       "(no key)", "the interleaved sequences named, failsafe landing on the samples at the stream's own rate, exit "
-       "1; if the forger still tips it past the tilt bound, motors off (without a key nothing tells a forger that "
-       "keeps the rate from the genuine source)")
+@lying_mocap("mocap: a publisher copying the genuine source id, dragging the genuine pose off at 0.5 m/s, mid-flight "
+             "(no "
+             "key)", "the interleaved sequences named, failsafe landing on the samples at the stream's own rate, exit "
+             "1; if the forger still tips it past the tilt bound, motors off (without a key nothing tells a forger "
+             "that "
+             "keeps the rate from the genuine source)")
 def f_mocap_copied_source_id(cli, tmp_path):
     res, stats = _attacked(tmp_path, "copy-id", keyed=False)
     assert stats["foreign"] == 0 and stats["conflicts"] >= 3  # the one-publisher rule alone sees nothing
@@ -42,39 +44,39 @@ def f_mocap_copied_source_id(cli, tmp_path):
         res.phase == "emergency" and res.reason == "tilt beyond 75 deg"), (res.phase, res.reason)
 
 
-@fault("mocap: samples stamped NaN, infinite or negative under the copied source id, mid-flight",
-       "counted as malformed, never used or logged; the flight completes")
+@lying_mocap("mocap: samples stamped NaN, infinite or negative under the copied source id, mid-flight",
+             "counted as malformed, never used or logged; the flight completes")
 def f_mocap_nan_stamps(cli, tmp_path):
     res, stats = _attacked(tmp_path, "nan-stamp", keyed=False)
     assert res.phase == "done" and res.nominal, res.reason
     assert stats["malformed"] > 50 and stats["conflicts"] == 0
 
 
-@fault("mocap: a pose 1 m off stamped 100 s ahead under the copied source id, mid-flight",
-       "rejected by the ground station's own clock (counted); the flight completes")
+@lying_mocap("mocap: a pose 1 m off stamped 100 s ahead under the copied source id, mid-flight",
+             "rejected by the ground station's own clock (counted); the flight completes")
 def f_mocap_future_stamps(cli, tmp_path):
     res, stats = _attacked(tmp_path, "future-stamp", keyed=False)
     assert res.phase == "done" and res.nominal, res.reason
     assert stats["bad_stamps"] > 50 and res.metrics.pos_rmse_m < 0.03
 
 
-@fault("authenticated mocap: a publisher without the key copying the source id, mid-flight",
-       "its samples counted as unauthenticated and never used; the flight completes")
+@lying_mocap("authenticated mocap: a publisher without the key copying the source id, mid-flight",
+             "its samples counted as unauthenticated and never used; the flight completes")
 def f_mocap_keyed_forger(cli, tmp_path):
     res, stats = _attacked(tmp_path, "copy-id", keyed=True)
     assert res.phase == "done" and res.nominal, res.reason
     assert stats["unauthenticated"] > 50 and stats["conflicts"] == 0 and res.metrics.pos_rmse_m < 0.03
 
 
-@fault("authenticated mocap: the genuine samples captured and re-sent 0.1 s later (valid MACs), mid-flight",
-       "rejected (old sequence numbers), no fault; the flight completes")
+@lying_mocap("authenticated mocap: the genuine samples captured and re-sent 0.1 s later (valid MACs), mid-flight",
+             "rejected (old sequence numbers), no fault; the flight completes")
 def f_mocap_keyed_replay(cli, tmp_path):
     res, stats = _attacked(tmp_path, "replay-captured", keyed=True)
     assert res.phase == "done" and res.nominal, res.reason
     assert stats["rejected"] > 50 and stats["unauthenticated"] == 0 and res.metrics.pos_rmse_m < 0.03
 
 
-@fault("mocap on a network endpoint without key_file or TLS", "one line naming mocap, exit 2, nothing opened")
+@bad_input("mocap on a network endpoint without key_file or TLS", "one line naming mocap, exit 2, nothing opened")
 def f_mocap_network_without_key(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/192.168.1.10:7448")
     code, out, err = cli("fly", str(cfg), "--log", str(tmp_path / "x.mcap"))

@@ -16,7 +16,7 @@ import pytest
 
 from groundstation.errors import PreflightError
 from groundstation.runtime.fly import fly
-from tests.faults.table import Fault, fault, rows
+from tests.faults.table import Fault, module_fault, rows
 from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import read_log, sitl_config
 
@@ -63,15 +63,16 @@ def _swap_row(kind: str):
                      rf"module 0 \({form.format(port + 1)}\) measures gravity \d+ deg from where its mount at place 0 "
                      rf"puts it; it matches place 1 \(module 1 \({form.format(port)}\)\)")
     run.__name__ = f"f_{kind}_links_swapped"
-    fault(f"{kind}: the two module links swapped in the flight config",
-          "preflight refuses naming both links (each module's gravity matches the other place), never armed")(run)
+    module_fault(f"{kind}: the two module links swapped in the flight config",
+                 "preflight refuses naming both links (each module's gravity matches the other place), never "
+                 "armed")(run)
 
 
 for _kind in PORTS:
     _swap_row(_kind)
 
 
-@fault("crazyflie: one module's link listed twice", "preflight refuses: both links reach one module (unique id)")
+@module_fault("crazyflie: one module's link listed twice", "preflight refuses: both links reach one module (unique id)")
 def f_crazyflie_link_listed_twice(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
         _refused(_links(cfg, [0, 0], "crazyflie"), tmp_path,
@@ -79,8 +80,9 @@ def f_crazyflie_link_listed_twice(cli, tmp_path):
                  r"\(unique id [0-9a-f]{24}\)")
 
 
-@fault("a Crazyflie flight config whose links reach PX4 modules (MAVLink)",
-       "one line: preflight names both links as not a Crazyflie's (never a cflib traceback), exit 2, never armed")
+@module_fault("a Crazyflie flight config whose links reach PX4 modules (MAVLink)",
+              "one line: preflight names both links as not a Crazyflie's (never a cflib traceback), exit 2, never "
+              "armed")
 def f_crazyflie_config_on_px4_modules(cli, tmp_path):
     with _peer(tmp_path, "mavlink") as mavlink_cfg:
         port = PORTS["mavlink"][0]
@@ -125,8 +127,8 @@ def _second_fly(cfg, tmp_path, env: dict):
     return res, second.returncode, err
 
 
-@fault("a second fly on this host against the modules an airborne flight holds",
-       "refused before it sends anything (the links are locked), exit 1; the first flight completes")
+@module_fault("a second fly on this host against the modules an airborne flight holds",
+              "refused before it sends anything (the links are locked), exit 1; the first flight completes")
 def f_second_fly_on_this_host(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
         res, code, err = _second_fly(cfg, tmp_path, {})
@@ -134,9 +136,10 @@ def f_second_fly_on_this_host(cli, tmp_path):
     assert code == 1 and err.count("\n") == 1 and "is in use by another flight on this host (pid " in err, err
 
 
-@fault("a second ground station (another host) flying the modules an airborne flight holds",
-       "each module refuses its claim (it flies for the first one), preflight refuses naming both, exit 2; the first "
-       "flight completes")
+@module_fault("a second ground station (another host) flying the modules an airborne flight holds",
+              "each module refuses its claim (it flies for the first one), preflight refuses naming both, exit 2; "
+              "the first "
+              "flight completes")
 def f_second_ground_station_elsewhere(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
         res, code, err = _second_fly(cfg, tmp_path, {"XDG_RUNTIME_DIR": str(tmp_path / "other-host")})

@@ -26,7 +26,7 @@ from groundstation.flightlog.mcap_log import WRITER_STALL_S
 from groundstation.replay.analysis import NO_END, analyse
 from groundstation.replay.reader import open_log
 from groundstation.runtime.fly import Faults, fly
-from tests.faults.table import Fault, fault, rows
+from tests.faults.table import Fault, process_fault, rows
 from tests.peers import ROOT
 from tests.runtime.test_fly import config_with, read_log
 
@@ -99,7 +99,8 @@ def _replayed(cli, log: Path) -> dict:
 
 
 # -- the log file ------------------------------------------------------------------------------------------------------
-@fault("fly --log naming a file that exists", "one line naming --log, exit 2, the file untouched, nothing opened")
+@process_fault("fly --log naming a file that "
+               "exists", "one line naming --log, exit 2, the file untouched, nothing opened")
 def f_log_path_exists(cli, tmp_path):
     log = tmp_path / "yesterday.mcap"
     log.write_bytes(b"yesterday's flight")
@@ -108,8 +109,8 @@ def f_log_path_exists(cli, tmp_path):
     assert log.read_bytes() == b"yesterday's flight"
 
 
-@fault("a second fly given the --log of a flight in progress",
-       "the second refused (one line, exit 2); the first flies on (exit 0), its log whole")
+@process_fault("a second fly given the --log of a flight in progress",
+               "the second refused (one line, exit 2); the first flies on (exit 0), its log whole")
 def f_log_path_of_a_running_flight(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7658")
     log = tmp_path / "first.mcap"
@@ -127,8 +128,8 @@ def f_log_path_of_a_running_flight(cli, tmp_path):
 
 
 # -- signals -----------------------------------------------------------------------------------------------------------
-@fault("SIGTERM to fly before it arms (during its preflight)",
-       "never armed; the log finalized, its end aborted with the reason naming SIGTERM, replayable; exit 1")
+@process_fault("SIGTERM to fly before it arms (during its preflight)",
+               "never armed; the log finalized, its end aborted with the reason naming SIGTERM, replayable; exit 1")
 def f_sigterm_in_preflight(cli, tmp_path):
     log = tmp_path / "preflight.mcap"
     proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7659"), log)
@@ -147,29 +148,51 @@ def f_sigterm_in_preflight(cli, tmp_path):
     assert r["complete"] and r["phase"] == "aborted" and r["reason"] == reason
 
 
-@fault("SIGTERM twice to fly in flight", "landing at the first, motors off at the second; the end (emergency, "
-                                         "operator stop (SIGTERM)) in the log and in replay; exit 1")
-def f_sigterm_twice_in_flight(cli, tmp_path):
-    log = tmp_path / "twice.mcap"
-    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7660"), log, "--duration", "2")
+def _signalled_in_flight(cli, tmp_path, sig: signal.Signals, times: int, port: int):
+    """``fly`` sent ``sig`` ``times`` times (0.3 s apart) once airborne; (exit code, stderr, its log replayed), the
+    log's landing at the first signal checked."""
+    log = tmp_path / "signalled.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}"), log, "--duration", "2")
     try:
         _wait_until(lambda: _airborne(log), proc, "airborne")
-        proc.send_signal(signal.SIGTERM)
-        time.sleep(0.3)
-        proc.send_signal(signal.SIGTERM)
+        for i in range(times):
+            time.sleep(0.3 * (i > 0))
+            proc.send_signal(sig)
         out, err = _ended(proc)
     finally:
         proc.kill()
-    assert proc.returncode == 1 and "the flight ended in emergency: operator stop (SIGTERM)" in err, err
     r = _replayed(cli, log)
-    assert r["complete"] and r["phase"] == "emergency" and r["reason"] == "operator stop (SIGTERM)"
     texts = [e["text"] for e in r["events"]]
-    assert any(t.endswith("-> landing: operator land (SIGTERM)") for t in texts), texts
+    assert any(t.endswith(f"-> landing: operator land ({sig.name})") for t in texts), texts
+    return proc.returncode, err, r
 
 
-@fault("the fly process killed (SIGKILL) in flight",
-       "its writer finishes the file, noting the end is missing; replay: the last phase, the reason that the log "
-       "has no end (never a plain end)")
+for _sig, _port, _port2 in [(signal.SIGTERM, 7660, 7667), (signal.SIGHUP, 7668, 7669)]:
+    _why = {"SIGTERM": "a service manager stopping it", "SIGHUP": "an SSH session dropping, a terminal closed"}
+    _name = _sig.name.lower()
+
+    def _once(cli, tmp_path, sig=_sig, port=_port):
+        code, err, r = _signalled_in_flight(cli, tmp_path, sig, 1, port)
+        assert code == 0, err
+        assert r["complete"] and r["phase"] == "done" and r["reason"] == f"operator land ({sig.name})", r
+        assert any(e["text"] == "landing -> done: landed" for e in r["events"]), r["events"]
+
+    def _twice(cli, tmp_path, sig=_sig, port=_port2):
+        code, err, r = _signalled_in_flight(cli, tmp_path, sig, 2, port)
+        assert code == 1 and f"the flight ended in emergency: operator stop ({sig.name})" in err, err
+        assert r["complete"] and r["phase"] == "emergency" and r["reason"] == f"operator stop ({sig.name})", r
+
+    _once.__name__, _twice.__name__ = f"f_{_name}_in_flight", f"f_{_name}_twice_in_flight"
+    process_fault(f"{_sig.name} to fly in flight ({_why[_sig.name]})", "a landing, the log finalized with its "
+                  f"reason operator land ({_sig.name}); exit 0")(_once)
+    process_fault(f"{_sig.name} twice to fly in flight", "landing at the first, motors off at the second; the end "
+                  f"(emergency, operator stop ({_sig.name})) in the log and in replay; exit 1")(_twice)
+
+
+@process_fault("the fly process killed (SIGKILL) in flight",
+               "its writer finishes the file, noting the end is missing; replay: the last phase, the reason that the "
+               "log "
+               "has no end (never a plain end)")
 def f_sigkill_in_flight(cli, tmp_path):
     log = tmp_path / "killed.mcap"
     proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7661"), log)
@@ -187,8 +210,9 @@ def f_sigkill_in_flight(cli, tmp_path):
 
 
 # -- the loop ----------------------------------------------------------------------------------------------------------
-@fault("an exception in the control loop (a bug in a period hook)",
-       "motors off in that period; the crash, named, is the logged end (replay: emergency); the exception re-raised")
+@process_fault("an exception in the control loop (a bug in a period hook)",
+               "motors off in that period; the crash, named, is the logged end (replay: emergency); the exception "
+               "re-raised")
 def f_loop_crash(cli, tmp_path):
     log = tmp_path / "crash.mcap"
 
@@ -228,9 +252,9 @@ def _hung_writer(cli, tmp_path, log: Path, cfg: Path, hang, resume) -> None:
     assert r.complete and r.metrics.periods > 0 and r.metrics.reason == NO_END
 
 
-@fault("the log writer process stops (SIGSTOP) in flight",
-       f"seen within {WRITER_STALL_S:g} s (the watchdog's bound), failsafe landing (on_log_failure), exit 1; "
-       "resumed, the writer finishes the file")
+@process_fault("the log writer process stops (SIGSTOP) in flight",
+               f"seen within {WRITER_STALL_S:g} s (the watchdog's bound), failsafe landing (on_log_failure), exit 1; "
+               "resumed, the writer finishes the file")
 def f_log_writer_stopped(cli, tmp_path):
     _hung_writer(cli, tmp_path, tmp_path / "stopped.mcap", config_with(tmp_path, endpoint="tcp/127.0.0.1:7663"),
                  lambda pid: os.kill(pid, signal.SIGSTOP), lambda pid: os.kill(pid, signal.SIGCONT))
@@ -258,9 +282,9 @@ def _loop_filesystem(tmp_path):
             subprocess.run(["umount", "-l", str(mount)], capture_output=True)
 
 
-@fault("the log's filesystem frozen (fsfreeze) in flight: the writer blocks in write",
-       f"seen within {WRITER_STALL_S:g} s, failsafe landing, exit 1; thawed, the writer finishes the file "
-       "(skipped without root or loop devices)")
+@process_fault("the log's filesystem frozen (fsfreeze) in flight: the writer blocks in write",
+               f"seen within {WRITER_STALL_S:g} s, failsafe landing, exit 1; thawed, the writer finishes the file "
+               "(skipped without root or loop devices)")
 def f_log_disk_frozen(cli, tmp_path):
     with _loop_filesystem(tmp_path) as disk:
         def freeze(pid):
@@ -275,8 +299,9 @@ def f_log_disk_frozen(cli, tmp_path):
     assert analyse(kept).complete
 
 
-@fault("mocap samples logged with stamps that are not times for 1 s in flight (NaN, -1 s, inf, 1.7e12: milliseconds)",
-       "rejected at the writer, counted and named in the log; the flight completes, its log whole (exit 0)")
+@process_fault("mocap samples logged with stamps that are not times for 1 s in flight (NaN, -1 s, inf, 1.7e12: "
+               "milliseconds)",
+               "rejected at the writer, counted and named in the log; the flight completes, its log whole (exit 0)")
 def f_bad_pose_stamps(cli, tmp_path):
     faults = Faults()
     bad = [float("nan"), -1.0, float("inf"), 1.7e12]
@@ -298,9 +323,10 @@ def f_bad_pose_stamps(cli, tmp_path):
 
 
 # -- a flight beyond its bounds ---------------------------------------------------------------------------------------
-@fault("a lab's quality bound the flight cannot meet: attitude error p95 at most 0.1 deg (the mocap's own attitude "
-       "noise; the dry run measures ~3 deg)",
-       "the summary names the bound passed (attitude error p95 > 0.1 deg), exit 3")
+@process_fault("a lab's quality bound the flight cannot meet: attitude error p95 at most 0.1 deg (the mocap's own "
+               "attitude "
+               "noise; the dry run measures ~3 deg)",
+               "the summary names the bound passed (attitude error p95 > 0.1 deg), exit 3")
 def f_degraded_beyond_quality_bound(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7666")
     cfg.write_text(cfg.read_text() + "\n[quality]\nattitude_error_p95_deg = 0.1\n")

@@ -16,7 +16,7 @@ import pytest
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from groundstation.runtime.fly import Faults, fly
-from tests.faults.table import Fault, fault, rows
+from tests.faults.table import Fault, estimate_fault, rows
 from tests.faults.test_fault_table import _records
 from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import TRACK_START_S, config_with, read_log, sitl_config
@@ -70,9 +70,10 @@ def _cuttable(tmp_path):
             p.wait(10)
 
 
-@fault("mocap: the Zenoh TCP link to simulated Crazyflie modules cut for 300 ms in tracking (a relay resets every "
-       "connection and refuses new ones)", "the session reconnects by itself; the flight lands blind on its "
-       "estimate when the poses go stale and on the poses again once they are back; tilt below 15 deg, exit 1")
+@estimate_fault("mocap: the Zenoh TCP link to simulated Crazyflie modules cut for 300 ms in tracking (a relay resets "
+                "every "
+                "connection and refuses new ones)", "the session reconnects by itself; the flight lands blind on its "
+                "estimate when the poses go stale and on the poses again once they are back; tilt below 15 deg, exit 1")
 def f_zenoh_link_cut_300ms(cli, tmp_path):
     with _cuttable(tmp_path) as (cfg, relay):
         cut = []
@@ -96,8 +97,9 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
     assert 0.3 <= gap < 0.8, gap  # the cut, and the reconnection within half a second of its end (Zenoh: 1-4 s)
 
 
-@fault("mocap: no pose for 1 s in tracking (dry run)", "a blind landing on the estimate, the poses fused again "
-       "when they return; touches down upright (tilt below 15 deg), exit 1")
+@estimate_fault("mocap: no pose for 1 s in tracking (dry "
+                "run)", "a blind landing on the estimate, the poses fused again "
+                "when they return; touches down upright (tilt below 15 deg), exit 1")
 def f_mocap_blackout_1s(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "blackout.mcap"
@@ -114,8 +116,9 @@ def f_mocap_blackout_1s(cli, tmp_path):
     assert after and max(after) < 0.01  # the poses are back: the uncertainty is mocap's again
 
 
-@fault("mocap: a frozen but freshly stamped pose while the assembly flies its figure-8 (dry run)",
-       "rejected within 0.1 s as a frozen stream (a mocap fault, named), a blind landing on the estimate, exit 1")
+@estimate_fault("mocap: a frozen but freshly stamped pose while the assembly flies its figure-8 (dry run)",
+                "rejected within 0.1 s as a frozen stream (a mocap fault, named), a blind landing on the estimate, "
+                "exit 1")
 def f_mocap_frozen_pose(cli, tmp_path):
     faults = Faults()
     on_period, frozen = _injected(faults, "mocap_frozen", True)
@@ -130,9 +133,10 @@ def f_mocap_frozen_pose(cli, tmp_path):
     assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
 
 
-@fault("a module's gyro fails in tracking: reads 2000 deg/s, full scale (dry run)",
-       "left out of the body rate in the period it shows (the mocap's rate says which of the two), a landing on the "
-       "other's, named; tilt below 15 deg, exit 1")
+@estimate_fault("a module's gyro fails in tracking: reads 2000 deg/s, full scale (dry run)",
+                "left out of the body rate in the period it shows (the mocap's rate says which of the two), a "
+                "landing on the "
+                "other's, named; tilt below 15 deg, exit 1")
 def f_gyro_failed(cli, tmp_path):
     faults = Faults()
     on_period, failed = _injected(faults, "gyro_failed", 1)

@@ -77,6 +77,22 @@ def test_a_stamp_far_from_its_arrival_cannot_open_the_gates(sessions, offset_s):
     assert sub.accepted == 25 and not sub.fault()
 
 
+def test_a_stamp_that_goes_backwards_is_rejected(sessions):
+    """The next sequence number, the same pose, stamped 20 ms before the last sample (inside the 50 ms skew bound,
+    so only the order tells): rejected and counted; the stream goes on."""
+    a, b, c = sessions
+    sub = PoseSubscriber(b, KEY)
+    pub = PosePublisher(a, KEY)
+    _genuine(pub, sub, 0, 20)
+    last = sub.latest().stamp
+    pub.publish(np.array([0.0, 0.0, 1.0]), np.eye(3), last - 0.02)
+    _wait(sub, 21)
+    assert sub.accepted == 20 and sub.rejected == 1 and sub.last_rejection == "stamp not after the last one"
+    assert sub.latest().stamp == last
+    _genuine(pub, sub, 21, 5)
+    assert sub.accepted == 25 and not sub.fault()
+
+
 def test_the_speed_gate_scales_with_the_local_clock_not_the_stamps(sessions):
     """A sample right after the last, stamped 40 ms ahead (inside the skew bound), 1 m away: beyond max_speed
     (10 m/s) over any time the stamps or the local clock allow, rejected, the stream unmoved."""

@@ -1,0 +1,84 @@
+"""One flight per link on this host: the lock a second process meets, all or none, gone with its holder."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from groundstation.backends.link_lock import LinkLocks, lock_dir
+from groundstation.backends.mavlink import MavlinkBackend
+from groundstation.errors import LinkError
+from sim.mavlink_peer import SimulatedPx4
+from tests import peers
+from tests.peers import ASM, ROOT, U_MAX, stop_peer
+
+HOLD = ("import sys\nfrom groundstation.backends.link_lock import LinkLocks\nlocks = LinkLocks(sys.argv[1:])\n"
+        "locks.acquire()\nprint('held', flush=True)\nsys.stdin.read()\n")
+
+
+@pytest.fixture(autouse=True)
+def _own_lock_dir(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # the holder process inherits it
+
+
+def _holder(*uris: str) -> subprocess.Popen:
+    """Another process holding ``uris``' locks until its stdin closes."""
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, *uris], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True, cwd=ROOT)
+    assert proc.stdout.readline() == "held\n"
+    return proc
+
+
+def test_a_link_another_process_holds_is_refused_naming_it_and_the_holder():
+    holder = _holder("udp://127.0.0.1:19850")
+    try:
+        with pytest.raises(LinkError, match=rf"^UDP://127.0.0.1:19850 is in use by another flight on this host "
+                                            rf"\(pid {holder.pid}\)"):
+            LinkLocks([" UDP://127.0.0.1:19850"]).acquire()  # the same link, however it is spelled in case
+    finally:
+        holder.communicate("")
+    locks = LinkLocks(["udp://127.0.0.1:19850"])
+    locks.acquire()  # released when its holder exited
+    locks.release()
+    assert lock_dir().stat().st_mode & 0o777 == 0o700  # per user: no other account can hold or fake a lock
+
+
+def test_links_are_taken_all_or_none():
+    holder = _holder("udp://127.0.0.1:2")
+    try:
+        with pytest.raises(LinkError, match="udp://127.0.0.1:2 is in use"):
+            LinkLocks(["udp://127.0.0.1:1", "udp://127.0.0.1:2"]).acquire()
+        free = LinkLocks(["udp://127.0.0.1:1"])
+        free.acquire()  # the first link's lock was given back when the second was refused
+        free.release()
+    finally:
+        holder.communicate("")
+
+
+def test_a_killed_holder_leaves_no_stale_lock():
+    holder = _holder("radio://0/80/2M/E7E7E7E701")
+    holder.send_signal(signal.SIGKILL)
+    holder.wait(10)
+    locks = LinkLocks(["radio://0/80/2M/e7e7e7e701"])
+    locks.acquire()
+    locks.release()
+
+
+def test_a_px4_backend_on_held_links_sends_nothing():
+    """The second flight is refused before it opens a socket: the vehicle hears no packet from it."""
+    peer, th = peers.start_peer(SimulatedPx4, 14654, 7431)
+    links = [f"udpout:127.0.0.1:{14654 + i}" for i in range(ASM.n)]
+    holder = _holder(*links)
+    try:
+        heard = peer.packets
+        with pytest.raises(LinkError, match=f"{links[0]} is in use by another flight on this host"):
+            MavlinkBackend(links, U_MAX, ASM.module_rotations).connect()
+        time.sleep(0.3)  # anything it had sent would have arrived by now
+        assert peer.packets == heard
+    finally:
+        holder.communicate("")
+        stop_peer(peer, th)
