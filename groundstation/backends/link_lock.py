@@ -48,8 +48,8 @@ class LinkLocks:
                     fh.seek(0)
                     holder = fh.read().strip() or "unknown"
                     fh.close()
-                    raise LinkError(f"{uri.strip()} is in use by another flight on this host (pid {holder}); one flight "
-                                    f"owns a module set") from None
+                    raise LinkError(f"{uri.strip()} is in use by another flight on this host (pid {holder}); one "
+                                    f"flight owns a module set") from None
                 fh.seek(0)
                 fh.truncate()
                 fh.write(str(os.getpid()))
