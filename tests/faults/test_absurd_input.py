@@ -112,50 +112,58 @@ def _mcap(tmp_path) -> Path:
     return path
 
 
-@bad_input("fly with an MCAP log given as the flight config", "exit 2 naming the file: not a text file")
+@bad_input("fly with an MCAP log given as the flight config",
+           "exit 2 naming the file: not a text file")
 def f_absurd_flight_config_is_an_mcap_log(cli, tmp_path):
     mcap = _mcap(tmp_path)
     _fly_refused(cli, tmp_path, mcap, "not a text file")
 
 
-@bad_input("fly /dev/zero", "exit 2 naming /dev/zero at once (one read of 4 MiB)")
+@bad_input("fly /dev/zero",
+           "exit 2 naming /dev/zero at once (one read of 4 MiB)")
 def f_absurd_flight_config_is_dev_zero(cli, tmp_path):
     _fly_refused(cli, tmp_path, Path("/dev/zero"), "not a text file")
 
 
-@bad_input("fly with a flight config of 5 MiB", "exit 2 naming the file: larger than 4 MiB")
+@bad_input("fly with a flight config of 5 MiB",
+           "exit 2 naming the file: larger than 4 MiB")
 def f_absurd_flight_config_of_5_mib(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
     cfg.write_text(cfg.read_text() + "#" * (5 * 2**20))
     _fly_refused(cli, tmp_path, cfg, "larger than 4 MiB")
 
 
-@bad_input("fly with a flight config in Latin-1", "exit 2 naming the file: not UTF-8")
+@bad_input("fly with a flight config in Latin-1",
+           "exit 2 naming the file: not UTF-8")
 def f_absurd_flight_config_not_utf8(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
     cfg.write_bytes(cfg.read_bytes().replace(b'body = "assembly"', b'body = "assembl\xe9"'))
     _fly_refused(cli, tmp_path, cfg, "not UTF-8 text")
 
 
-@bad_input("fly with assembly = /dev/zero", "exit 2 naming the config, assembly and /dev/zero")
+@bad_input("fly with assembly = /dev/zero",
+           "exit 2 naming the config, assembly and /dev/zero")
 def f_absurd_assembly_is_dev_zero(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **{TOY_ASSEMBLY: "/dev/zero"})
     _fly_refused(cli, tmp_path, cfg, "assembly: /dev/zero: not a text file")
 
 
-@bad_input("simulate an MCAP log given as the assembly", "exit 2 naming the file: not a text file")
+@bad_input("simulate an MCAP log given as the assembly",
+           "exit 2 naming the file: not a text file")
 def f_absurd_simulate_assembly_is_an_mcap_log(cli, tmp_path):
     mcap = _mcap(tmp_path)
     _refused(cli, ("simulate", str(mcap)), f"{mcap}: not a text file")
 
 
-@bad_input("optimize with the Python executable given as the task", "exit 2 naming the file: not a text file")
+@bad_input("optimize with the Python executable given as the task",
+           "exit 2 naming the file: not a text file")
 def f_absurd_task_is_a_binary(cli, tmp_path):
     binary = str(Path(sys.executable).resolve())
     _refused(cli, ("optimize", binary, "--topology", "oS"), f"{binary}: not a text file")
 
 
-@bad_input("design with /dev/zero as the task", "exit 2 naming /dev/zero at once")
+@bad_input("design with /dev/zero as the task",
+           "exit 2 naming /dev/zero at once")
 def f_absurd_task_is_dev_zero(cli, tmp_path):
     _refused(cli, ("design", "/dev/zero"), "/dev/zero: not a text file")
 

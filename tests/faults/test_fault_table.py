@@ -87,24 +87,28 @@ for _name, _changes, _args, _key in BAD_INPUTS:
     bad_input(f"fly with {_name.replace('_', ' ')}", f"exit 2 naming {_key!r}, never armed")(_case)
 
 
-@bad_input("a config file that is not TOML", "exit 2 naming the file, never armed")
+@bad_input("a config file that is not TOML",
+           "exit 2 naming the file, never armed")
 def f_bad_input_invalid_toml(cli, tmp_path):
     cfg = tmp_path / "broken.toml"
     cfg.write_text("assembly = \n[backend\n")
     _bad(cli, tmp_path, {}, (), "broken.toml: invalid TOML", config=cfg)
 
 
-@bad_input("a config that names no assembly file", "exit 2 naming assembly, never armed")
+@bad_input("a config that names no assembly file",
+           "exit 2 naming assembly, never armed")
 def f_bad_input_missing_assembly(cli, tmp_path):
     _bad(cli, tmp_path, {str(ROOT / "configs/assemblies/toy_v2.json"): "/nonexistent.json"}, (), "assembly")
 
 
-@bad_input("a config file that does not exist", "exit 2 naming the file")
+@bad_input("a config file that does not exist",
+           "exit 2 naming the file")
 def f_bad_input_missing_config(cli, tmp_path):
     _bad(cli, tmp_path, {}, (), "file not found", config=tmp_path / "none.toml")
 
 
-@bad_input("a log directory that cannot be written", "exit 2 naming log_dir")
+@bad_input("a log directory that cannot be written",
+           "exit 2 naming log_dir")
 def f_bad_input_unwritable_log_dir(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7492",
                       **{'log_dir = "../../out/flights"': 'log_dir = "/proc/nope"'})
@@ -158,14 +162,16 @@ for _mode, _what in [("second", "a second publisher takes over the pose key"),
     lying_mocap(f"mocap: {_what}, mid-flight", "named failsafe landing on the genuine stream, exit 1")(_case)
 
 
-@lying_mocap("mocap: malformed samples on the pose key, mid-flight", "counted and ignored; the flight completes")
+@lying_mocap("mocap: malformed samples on the pose key, mid-flight",
+             "counted and ignored; the flight completes")
 def f_mocap_malformed(cli, tmp_path):
     res, log = _hostile_flight(tmp_path, "malformed")
     assert res.phase == "done" and res.nominal, res.reason
     assert json.loads(_records(log, "/mocap/stats")[-1][1])["malformed"] > 50
 
 
-@lying_mocap("mocap: a second publisher already there before take-off", "preflight refuses, never armed")
+@lying_mocap("mocap: a second publisher already there before take-off",
+             "preflight refuses, never armed")
 def f_mocap_attacker_before_take_off(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": "latency_s = 0.005\nlisten = true",
                                                      "[mocap]\n": "[mocap]\npreflight_watch_s = 1.0\n"})  # shipped
@@ -181,7 +187,8 @@ def f_mocap_attacker_before_take_off(cli, tmp_path):
         attacker.wait(10)
 
 
-@link_or_load("mocap: the stream stops mid-flight", "landing on the last estimate, reason mocap stale, exit 1")
+@link_or_load("mocap: the stream stops mid-flight",
+              "landing on the last estimate, reason mocap stale, exit 1")
 def f_mocap_dropout(cli, tmp_path):
     from groundstation.runtime.fly import Faults
 
@@ -191,7 +198,8 @@ def f_mocap_dropout(cli, tmp_path):
     assert res.phase == "done" and res.reason.startswith("mocap stale") and not res.nominal
 
 
-@link_or_load("the assembly is tied to the ground", "landing once 0.5 m from the reference, reason names it, exit 1")
+@link_or_load("the assembly is tied to the ground",
+              "landing once 0.5 m from the reference, reason names it, exit 1")
 def f_tied_down(cli, tmp_path):
     from groundstation.runtime.fly import Faults
 
@@ -216,7 +224,8 @@ def _stalling(seconds: float, at: float = TRACK_START_S + 4.0):
     return on_period
 
 
-@link_or_load("the control loop stalls 200 ms in flight", "motors off, reason loop stalled (not a later tilt), exit 1")
+@link_or_load("the control loop stalls 200 ms in flight",
+              "motors off, reason loop stalled (not a later tilt), exit 1")
 def f_loop_stall_200ms(cli, tmp_path):
     log = tmp_path / "stall.mcap"
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7494"), duration=4.0, log_path=log,
@@ -226,7 +235,8 @@ def f_loop_stall_200ms(cli, tmp_path):
     assert analyse(log).metrics.stalls == 1
 
 
-@link_or_load("the control loop stalls 50 ms in flight", "a warning names it; the flight goes on")
+@link_or_load("the control loop stalls 50 ms in flight",
+              "a warning names it; the flight goes on")
 def f_loop_stall_50ms(cli, tmp_path):
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7494"), duration=4.0, log_path=tmp_path / "s.mcap",
               on_period=_stalling(0.05))
@@ -234,9 +244,9 @@ def f_loop_stall_50ms(cli, tmp_path):
     assert any(text.startswith("loop stalled 5") for _, level, text in res.events if level == "warning")
 
 
-@link_or_load("a CPU hog on the second core during the README's main command", "the flight completes (exit 0); if the "
-              "host stops the machine's CPUs for ~100 ms (seen by a top-priority probe on each), motors off on the "
-              "stall")
+@link_or_load("a CPU hog on the second core during the README's main command",
+              "the flight completes (exit 0); if the host stops the machine's CPUs for ~100 ms (seen by a top-priority "
+              "probe on each), motors off on the stall")
 def f_cpu_hog(cli, tmp_path):
     cpu = max(os.sched_getaffinity(0))
     hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{cpu}}})\n"
@@ -271,8 +281,8 @@ def _small_disk(tmp_path):
             subprocess.run(["umount", str(mount)], capture_output=True)
 
 
-@process_fault("the disk fills up in flight", "the writer's failure seen in flight, landing, summary printed, "
-               "what was written readable, exit 1")
+@process_fault("the disk fills up in flight",
+               "the writer's failure seen in flight, landing, summary printed, what was written readable, exit 1")
 def f_full_disk(cli, tmp_path):
     with _small_disk(tmp_path) as (disk, limit):
         cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7496")
@@ -320,7 +330,8 @@ def _max_tilt_deg(log) -> float:
     return max(tilt)
 
 
-@link_or_load("crazyflie link: 30 ms added each way from the start", "preflight refuses (round trip), never armed")
+@link_or_load("crazyflie link: 30 ms added each way from the start",
+              "preflight refuses (round trip), never armed")
 def f_link_30ms_from_the_start(cli, tmp_path):
     with _relayed(tmp_path, delay_ms=30) as cfg:
         log = tmp_path / "slow.mcap"
@@ -331,7 +342,8 @@ def f_link_30ms_from_the_start(cli, tmp_path):
     assert "/control" not in counts and any(b"link round trip" in d for _, d in logs)
 
 
-@link_or_load("crazyflie link: 30 ms added each way in flight", "motors off before the attitude goes (no flip), exit 1")
+@link_or_load("crazyflie link: 30 ms added each way in flight",
+              "motors off before the attitude goes (no flip), exit 1")
 def f_link_30ms_in_flight(cli, tmp_path):
     with _relayed(tmp_path, delay_ms=30, after=6.0) as cfg:
         log = tmp_path / "late.mcap"
@@ -340,7 +352,8 @@ def f_link_30ms_in_flight(cli, tmp_path):
     assert _max_tilt_deg(log) < 20.0
 
 
-@link_or_load("crazyflie link: 20 % of packets reordered in flight", "a link-degraded failsafe (no flip), exit 1")
+@link_or_load("crazyflie link: 20 % of packets reordered in flight",
+              "a link-degraded failsafe (no flip), exit 1")
 def f_link_reordering(cli, tmp_path):
     with _relayed(tmp_path, reorder=0.2, reorder_ms=10, after=6.0) as cfg:
         log = tmp_path / "reorder.mcap"
@@ -349,7 +362,8 @@ def f_link_reordering(cli, tmp_path):
     assert not res.nominal and _max_tilt_deg(log) < 20.0
 
 
-@link_or_load("crazyflie link: 20 % of packets duplicated", "the app drops the copies; the flight completes")
+@link_or_load("crazyflie link: 20 % of packets duplicated",
+              "the app drops the copies; the flight completes")
 def f_link_duplication(cli, tmp_path):
     with _relayed(tmp_path, duplicate=0.2) as cfg:
         res = fly(cfg, duration=3.0, log_path=tmp_path / "dup.mcap")
@@ -358,14 +372,16 @@ def f_link_duplication(cli, tmp_path):
     assert res.nominal or (res.phase in ("done", "emergency") and "round trip" in res.reason), res.reason
 
 
-@link_or_load("crazyflie link: 2 % loss", "the flight completes")
+@link_or_load("crazyflie link: 2 % loss",
+              "the flight completes")
 def f_link_loss_2_percent(cli, tmp_path):
     with _relayed(tmp_path, loss=0.02) as cfg:
         res = fly(cfg, duration=3.0, log_path=tmp_path / "lossy.mcap")
     assert res.phase == "done" and res.nominal and res.metrics.pos_rmse_m < 0.03
 
 
-@link_or_load("crazyflie parameters over a link losing 5 %", "the check completes (repeats what is lost)")
+@link_or_load("crazyflie parameters over a link losing 5 %",
+              "the check completes (repeats what is lost)")
 def f_params_crazyflie_5_percent_loss(cli, tmp_path):
     with _relayed(tmp_path, loss=0.05) as cfg:
         code, out, err = cli("params", str(cfg), "--json")
@@ -373,7 +389,8 @@ def f_params_crazyflie_5_percent_loss(cli, tmp_path):
     assert code == 0 and len(rows) == 8 and all(r["ok"] for r in rows), err
 
 
-@link_or_load("parameters of modules that do not answer", "one line per module, exit 1")
+@link_or_load("parameters of modules that do not answer",
+              "one line per module, exit 1")
 def f_params_silent_modules(cli, tmp_path):
     for kind, port in (("crazyflie", 19746), ("mavlink", 19756)):
         cfg = sitl_config(tmp_path, kind, port, "tcp/127.0.0.1:7608")
@@ -382,8 +399,8 @@ def f_params_silent_modules(cli, tmp_path):
 
 
 # -- PX4 over MAVLink through a lossy relay ---------------------------------------------------------------------------
-@link_or_load("MAVLink link losing 5 % (arming, flight, disarm)", "arms (commands repeated until acknowledged), flies, "
-              "lands")
+@link_or_load("MAVLink link losing 5 % (arming, flight, disarm)",
+              "arms (commands repeated until acknowledged), flies, lands")
 def f_mavlink_5_percent_loss(cli, tmp_path):
     relay = subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", "19970", "--target", "19960",
                               "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL)
@@ -401,8 +418,8 @@ def f_mavlink_5_percent_loss(cli, tmp_path):
     assert res.phase == "done" and res.nominal, res.reason
 
 
-@process_fault("fly with stdin closed (started from a script, cron or a "
-               "service)", "flies without the key reader, exit 0")
+@process_fault("fly with stdin closed (started from a script, cron or a service)",
+               "flies without the key reader, exit 0")
 def f_stdin_closed(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7634")
     log = tmp_path / "no-stdin.mcap"

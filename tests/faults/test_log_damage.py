@@ -56,8 +56,7 @@ def _recovered(cli, tmp_path: Path, log: Path, want: Expected) -> dict:
 @process_fault("one bit flipped in the middle of a chunk of a flight log",
                "replay: one line naming the chunk's bytes and the messages it held per channel, every other period "
                "analysed, exit 0; log recover: every other message in a valid finalized copy, the chunk and its "
-               "messages "
-               "counted as dropped (CRC), the source not called complete")
+               "messages counted as dropped (CRC), the source not called complete")
 def f_log_one_bit_flipped(cli, tmp_path):
     log = flight_log()
     chunk = chunks_of(log)[len(chunks_of(log)) // 2]
@@ -121,7 +120,8 @@ def f_log_summary_damaged(cli, tmp_path):
     _summary_or_footer(cli, tmp_path, "summary")
 
 
-@process_fault("log recover onto a full disk (/dev/full)", "one line naming the output file, exit 2, no traceback")
+@process_fault("log recover onto a full disk (/dev/full)",
+               "one line naming the output file, exit 2, no traceback")
 def f_log_recover_full_disk(cli, tmp_path):
     code, out, err = cli("log", "recover", str(flight_log()), str(full(tmp_path / "r.mcap")))
     assert code == 2 and out == "" and err == f"groundstation: error: {tmp_path / 'r.mcap'}: cannot write: No space " \
@@ -148,7 +148,8 @@ def f_replay_outputs_full_disk(cli, tmp_path):
     assert code == 2 and err.count("\n") == 1 and "fig9.png: cannot write: No space left on device" in err, err
 
 
-@process_fault("enumerate --out onto a full disk (/dev/full)", "one line naming the file, exit 2, no traceback")
+@process_fault("enumerate --out onto a full disk (/dev/full)",
+               "one line naming the file, exit 2, no traceback")
 def f_enumerate_out_full_disk(cli, tmp_path):
     code, _, err = cli("enumerate", "4", "--out", str(full(tmp_path / "c.json")))
     assert code == 2 and err == f"groundstation: error: {tmp_path / 'c.json'}: cannot write: No space left on " \

@@ -26,10 +26,9 @@ def _attacked(tmp_path, mode: str, keyed: bool):
 
 
 @lying_mocap("mocap: a publisher copying the genuine source id, dragging the genuine pose off at 0.5 m/s, mid-flight "
-             "(no "
-             "key)", "the interleaved sequences named, failsafe landing on the samples at the stream's own rate, exit "
-             "1; if the forger still tips it past the tilt bound, motors off (without a key nothing tells a forger "
-             "that "
+             "(no key)",
+             "the interleaved sequences named, failsafe landing on the samples at the stream's own rate, exit 1; if "
+             "the forger still tips it past the tilt bound, motors off (without a key nothing tells a forger that "
              "keeps the rate from the genuine source)")
 def f_mocap_copied_source_id(cli, tmp_path):
     res, stats = _attacked(tmp_path, "copy-id", keyed=False)
@@ -76,7 +75,8 @@ def f_mocap_keyed_replay(cli, tmp_path):
     assert stats["rejected"] > 50 and stats["unauthenticated"] == 0 and res.metrics.pos_rmse_m < 0.03
 
 
-@bad_input("mocap on a network endpoint without key_file or TLS", "one line naming mocap, exit 2, nothing opened")
+@bad_input("mocap on a network endpoint without key_file or TLS",
+           "one line naming mocap, exit 2, nothing opened")
 def f_mocap_network_without_key(cli, tmp_path):
     cfg = config_with(tmp_path, endpoint="tcp/192.168.1.10:7448")
     code, out, err = cli("fly", str(cfg), "--log", str(tmp_path / "x.mcap"))

@@ -16,8 +16,10 @@ import pytest
 
 from groundstation.errors import PreflightError
 from groundstation.runtime.fly import fly
+from sim.crazyflie_peer import SimulatedCrazyflies
+from sim.mavlink_peer import SimulatedPx4
 from tests.faults.table import Fault, module_fault, rows
-from tests.peers import ROOT, peer_process
+from tests.peers import ROOT, peer_process, start_peer, stop_peer
 from tests.runtime.test_fly import read_log, sitl_config
 
 PORTS = {"crazyflie": (19700, "crtp", "udp://127.0.0.1:{}"), "mavlink": (14700, "mavlink", "udpout:127.0.0.1:{}")}
@@ -72,7 +74,8 @@ for _kind in PORTS:
     _swap_row(_kind)
 
 
-@module_fault("crazyflie: one module's link listed twice", "preflight refuses: both links reach one module (unique id)")
+@module_fault("crazyflie: one module's link listed twice",
+              "preflight refuses: both links reach one module (unique id)")
 def f_crazyflie_link_listed_twice(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
         _refused(_links(cfg, [0, 0], "crazyflie"), tmp_path,
@@ -137,14 +140,40 @@ def f_second_fly_on_this_host(cli, tmp_path):
 
 
 @module_fault("a second ground station (another host) flying the modules an airborne flight holds",
-              "each module refuses its claim (it flies for the first one), preflight refuses naming both, exit 2; "
-              "the first "
-              "flight completes")
+              "each module refuses its claim (it flies for the first one), preflight refuses naming both, exit 2; the "
+              "first flight completes")
 def f_second_ground_station_elsewhere(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
         res, code, err = _second_fly(cfg, tmp_path, {"XDG_RUNTIME_DIR": str(tmp_path / "other-host")})
     assert res.phase == "done" and res.nominal, res.reason
     assert code == 2 and err.count("flies for another ground station (session ") == 2, err
+
+
+def _stock_parameters_row(kind: str, peer_class, wrong: str):
+    def run(cli, tmp_path):
+        peer, th = start_peer(peer_class, 19890, 7479)  # fresh modules: stock firmware parameters
+        try:
+            cfg = sitl_config(tmp_path, kind, 19890, "tcp/127.0.0.1:7479")
+            log = tmp_path / "p.mcap"
+            with pytest.raises(PreflightError) as err:
+                fly(cfg, log_path=log)
+            assert f"firmware parameter: {wrong} (fix with: groundstation params {cfg} --apply)" in str(err.value)
+            assert not any(peer.armed(i) for i in range(2)) and peer.sim.telemetry().motors.max() == 0.0
+            assert not any(peer.locked(i) for i in range(2))  # never armed: no stop latched, no reboot needed
+            counts, _, logs, _ = read_log(log)
+            assert "/control" not in counts and any(b"firmware parameter" in data for _, data in logs)
+        finally:
+            stop_peer(peer, th)
+    run.__name__ = f"f_{kind}_stock_parameters"
+    module_fault(f"{kind}: modules with their stock firmware parameters (never `params --apply`)",
+                 "preflight refuses naming the parameter and the fix, exit 2; the modules left disarmed, not locked "
+                 "(no emergency stop latched, no reboot needed)")(run)
+
+
+for _kind, _class, _wrong in [
+        ("crazyflie", SimulatedCrazyflies, "module 0 (udp://127.0.0.1:19890): supervisor.tmblChckEn is 1, must be 0"),
+        ("mavlink", SimulatedPx4, "module 0 (udpout:127.0.0.1:19890): COM_OF_LOSS_T is 1, must be 0.1")]:
+    _stock_parameters_row(_kind, _class, _wrong)
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

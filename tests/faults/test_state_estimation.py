@@ -71,9 +71,9 @@ def _cuttable(tmp_path):
 
 
 @estimate_fault("mocap: the Zenoh TCP link to simulated Crazyflie modules cut for 300 ms in tracking (a relay resets "
-                "every "
-                "connection and refuses new ones)", "the session reconnects by itself; the flight lands blind on its "
-                "estimate when the poses go stale and on the poses again once they are back; tilt below 15 deg, exit 1")
+                "every connection and refuses new ones)",
+                "the session reconnects by itself; the flight lands blind on its estimate when the poses go stale and "
+                "on the poses again once they are back; tilt below 15 deg, exit 1")
 def f_zenoh_link_cut_300ms(cli, tmp_path):
     with _cuttable(tmp_path) as (cfg, relay):
         cut = []
@@ -97,9 +97,9 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
     assert 0.3 <= gap < 0.8, gap  # the cut, and the reconnection within half a second of its end (Zenoh: 1-4 s)
 
 
-@estimate_fault("mocap: no pose for 1 s in tracking (dry "
-                "run)", "a blind landing on the estimate, the poses fused again "
-                "when they return; touches down upright (tilt below 15 deg), exit 1")
+@estimate_fault("mocap: no pose for 1 s in tracking (dry run)",
+                "a blind landing on the estimate, the poses fused again when they return; touches down upright (tilt "
+                "below 15 deg), exit 1")
 def f_mocap_blackout_1s(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "blackout.mcap"
@@ -134,9 +134,8 @@ def f_mocap_frozen_pose(cli, tmp_path):
 
 
 @estimate_fault("a module's gyro fails in tracking: reads 2000 deg/s, full scale (dry run)",
-                "left out of the body rate in the period it shows (the mocap's rate says which of the two), a "
-                "landing on the "
-                "other's, named; tilt below 15 deg, exit 1")
+                "left out of the body rate in the period it shows (the mocap's rate says which of the two), a landing "
+                "on the other's, named; tilt below 15 deg, exit 1")
 def f_gyro_failed(cli, tmp_path):
     faults = Faults()
     on_period, failed = _injected(faults, "gyro_failed", 1)

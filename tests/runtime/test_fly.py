@@ -7,15 +7,13 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from groundstation.errors import BackendError, ConfigError, PreflightError, SessionError
+from groundstation.errors import BackendError, ConfigError, SessionError
 from groundstation.mocap.auth import write_key_file
 from groundstation.replay.reader import commands
 from groundstation.runtime.flight import Requests
 from groundstation.runtime.flight_config import load_flight_config
 from groundstation.runtime.fly import Faults, fly
-from sim.crazyflie_peer import SimulatedCrazyflies
-from sim.mavlink_peer import SimulatedPx4
-from tests.peers import peer_process, start_peer, stop_peer
+from tests.peers import peer_process
 
 ROOT = Path(__file__).resolve().parents[2]
 FLIGHT = ROOT / "configs/flights/toy_figure8_sim.toml"
@@ -251,25 +249,6 @@ def test_hardware_backend_link_loss_stops_the_motors(sim_peer, tmp_path):
     # motors off in the period the loss is seen, after the kill
     assert off[0]["t_s"] > last_flying["t_s"] > TRACK_START_S + 2.0
     assert any(b"sends no state" in data or b"backend link lost" in data for _, data in logs)
-
-
-@pytest.mark.parametrize("kind, peer_class, wrong", [
-    ("crazyflie", SimulatedCrazyflies, "module 0 (udp://127.0.0.1:19890): supervisor.tmblChckEn is 1, must be 0"),
-    ("mavlink", SimulatedPx4, "module 0 (udpout:127.0.0.1:19890): COM_OF_LOSS_T is 1, must be 0.1")])
-def test_preflight_refuses_modules_with_stock_parameters(tmp_path, kind, peer_class, wrong):
-    peer, th = start_peer(peer_class, 19890, 7479)  # fresh modules: stock firmware parameters
-    try:
-        cfg = sitl_config(tmp_path, kind, 19890, "tcp/127.0.0.1:7479")
-        log = tmp_path / "p.mcap"
-        with pytest.raises(PreflightError) as err:
-            fly(cfg, log_path=log)
-        assert f"firmware parameter: {wrong} (fix with: groundstation params {cfg} --apply)" in str(err.value)
-        assert not any(peer.armed(i) for i in range(2)) and peer.sim.telemetry().motors.max() == 0.0
-        assert not any(peer.locked(i) for i in range(2))  # never armed: no stop latched, no reboot needed
-        counts, _, logs, _ = read_log(log)
-        assert "/control" not in counts and any(b"firmware parameter" in data for _, data in logs)
-    finally:
-        stop_peer(peer, th)
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "configs/flights").glob("*.toml")), ids=lambda p: p.stem)
