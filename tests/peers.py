@@ -72,15 +72,15 @@ def stopped_by_host(reason: str, frozen: list[float]) -> bool:
     return any(stop in reason for stop in MACHINE_STOPS) and max(frozen, default=0.0) >= HOST_FREEZE_S
 
 
-def peer_process(tmp_path: Path, *args: str) -> subprocess.Popen:
-    """``groundstation sim-peer ARGS`` in its own process, as an operator starts it, returned once its links are
-    open (the "simulating ..." line it prints then); its stderr goes to a file in ``tmp_path``. A peer that exits
-    or is not ready in 30 s fails the test with what it printed (a fixed sleep was too short on a loaded machine
-    and too long on an idle one)."""
+def peer_process(tmp_path: Path, *args: str, as_world: bool = True) -> subprocess.Popen:
+    """``groundstation sim-peer ARGS`` in its own process, as an operator starts it (at :func:`world_priority`
+    unless not ``as_world``), returned once its links are open (the "simulating ..." line it prints then); its
+    stderr goes to a file in ``tmp_path``. A peer that exits or is not ready in 30 s fails the test with what it
+    printed (a fixed sleep was too short on a loaded machine and too long on an idle one)."""
     err = tmp_path / f"sim-peer-{next(_SPAWNED)}.err"
     with open(err, "w") as fh:
         proc = subprocess.Popen([sys.executable, "-m", "groundstation", "sim-peer", *args],
-                                stdout=subprocess.DEVNULL, stderr=fh, preexec_fn=world_priority)
+                                stdout=subprocess.DEVNULL, stderr=fh, preexec_fn=world_priority if as_world else None)
     deadline = time.monotonic() + 30.0
     while "simulating " not in err.read_text():
         if proc.poll() is not None or time.monotonic() > deadline:

@@ -26,7 +26,7 @@ from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
 from tests.faults.table import Fault, bad_input, link_or_load, lying_mocap, module_fault, process_fault, rows
 from tests.peers import ROOT, host_freezes, peer_process, stopped_by_host, world_priority
-from tests.runtime.test_fly import TRACK_START_S, config_with, read_log, sitl_config
+from tests.runtime.test_fly import TRACK_START_S, config_with, quick_phases, read_log, sitl_config
 
 PEER_PORT, RELAY_PORT = 19900, 19910
 HOSTILE = "tcp/127.0.0.1:7490"
@@ -264,6 +264,43 @@ def f_cpu_hog(cli, tmp_path):
         return  # the machine stopped for ~100 ms, not the loop: stopping the motors is the right answer to that
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout)["phase"] == "done"
+
+
+@link_or_load("the shipped Crazyflie SITL config with its shipped bounds (round trip 14 and 20 ms, link timeout "
+              "0.1 s), its modules a plain `sim-peer` as a user starts it, beside a busy process on each core (load "
+              "4)",
+              "the flight completes (exit 0), never on the round trip; if the host stops the machine's CPUs ~100 ms "
+              "(a probe per CPU), motors off on the stall or the silent link it causes")
+def f_shipped_crazyflie_sitl_beside_two_hogs(cli, tmp_path):
+    port, mocap = 19930, "tcp/127.0.0.1:7433"
+    text = (ROOT / "configs/flights/toy_figure8_crazyflie_sitl.toml").read_text()
+    assert all(bound in text for bound in ("link_timeout_s = 0.1", "max_link_latency_s = 0.014",
+                                           "link_stop_latency_s = 0.020"))  # the bounds it ships with
+    text = quick_phases(text.replace('"../', f'"{ROOT / "configs"}/').replace("19850", str(port))
+                        .replace("19851", str(port + 1)).replace("tcp/127.0.0.1:7448", mocap))
+    cfg = tmp_path / "shipped.toml"
+    cfg.write_text(text)
+    hogs = [subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{cpu}}})\n"
+                                                    "while True: pass"]) for cpu in os.sched_getaffinity(0)]
+    peer = None
+    try:
+        peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(port), "--mocap",
+                            mocap, "--params", str(ROOT / "firmware_params/crazyflie.toml"), as_world=False)
+        with host_freezes() as frozen:
+            run = subprocess.run([sys.executable, "-m", "groundstation", "fly", str(cfg), "--duration", "4",
+                                  "--log", str(tmp_path / "loaded.mcap"), "--json"], capture_output=True, text=True,
+                                 cwd=ROOT, timeout=120, stdin=subprocess.DEVNULL)
+    finally:
+        for proc in hogs + [peer] * (peer is not None):
+            proc.kill()
+            proc.wait()
+    assert "round trip" not in run.stderr, run.stderr
+    if run.returncode != 0 and stopped_by_host(run.stderr, frozen):
+        print(f"stopped by the host ({max(frozen) * 1e3:.0f} ms): {run.stderr.strip().splitlines()[-1]}")
+        return  # the machine stopped for ~100 ms: stopping the motors is the right answer to that
+    assert run.returncode == 0 and json.loads(run.stdout)["phase"] == "done", run.stderr
+    code, out, _ = cli("replay", str(tmp_path / "loaded.mcap"), "--json")
+    print(f"completed, round trip max {json.loads(out)[0]['link_latency_ms_max']} ms")
 
 
 # -- the log ---------------------------------------------------------------------------------------------------------
