@@ -52,6 +52,8 @@ def read_toml(path: str | Path) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"invalid TOML: {exc}", path=str(path)) from None
+    except RecursionError:  # arrays or tables nested thousands deep: the parser recurses per level
+        raise ConfigError("invalid TOML: nested deeper than the parser can follow", path=str(path)) from None
 
 
 def _no_constant(name: str):
@@ -66,6 +68,8 @@ def read_json(path: str | Path) -> object:
         return json.loads(text, parse_constant=_no_constant)
     except ValueError as exc:
         raise ConfigError(f"invalid JSON: {exc}", path=str(path)) from None
+    except RecursionError:
+        raise ConfigError("invalid JSON: nested deeper than the parser can follow", path=str(path)) from None
 
 
 def validate(schema: type[T], data: object, *, path: str | None = None, prefix: str = "") -> T:

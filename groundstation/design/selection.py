@@ -218,7 +218,7 @@ def read_results(path: Path) -> dict[str, SavedRow]:
         try:
             entry = json.loads(line)
             row = CandidateResult(**entry["row"])
-        except (ValueError, TypeError, KeyError) as exc:
+        except (ValueError, TypeError, KeyError, RecursionError) as exc:
             if lineno == len(lines):
                 continue
             raise ConfigError(f"line {lineno} is not a result row: {exc}", path=str(path)) from None

@@ -23,15 +23,15 @@ correction is made there and carried to now through the model's transition (the 
 it), so the output is the state at the control time, latency compensated. The gain uses the covariance now
 (Larsen's approximation for delayed measurements; the difference over a few milliseconds is negligible).
 
-Innovation health: a measurement farther from the estimate than ``gate_sigma`` standard deviations of its
-innovation (and than a floor that covers what the model leaves out) is rejected and counted, never fused; a stream
-rejected for ``inconsistent_s`` on end is a fault (:meth:`RigidBodyFilter.fault`): a pose frozen while the gyros
-turn, a body swapped for another, a forger's track. A rejected position multiplies the translation covariance by
+Innovation health: a measurement farther from the estimate than ``gate_sigma`` standard deviations of its innovation
+(and than a floor that covers what the model leaves out) is rejected and counted, never fused; a stream rejected for
+``inconsistent_s`` on end is a fault (:meth:`RigidBodyFilter.fault`): a pose frozen while the gyros turn, a body
+swapped for another, a forger's track. A rejected position multiplies the translation covariance by
 ``rejection_inflation`` (a fading memory): if the model, not the pose, was wrong (a shove, a thrust map far off),
-the gate has opened to the poses again after three or four samples, before the fault; a pose metres away stays
-out. The attitude is not inflated: the gyros predict it too well for a frozen pose to pass. Through an outage the
-covariance grows with the model's noises, so the gate opens again by itself and the failsafe can act on the
-uncertainty.
+the gate has opened to the poses again after three or four samples, before the fault; a pose metres away stays out,
+and after the fault (latched) no pose is fused again. The attitude is not inflated: the gyros predict it too well
+for a frozen pose to pass. Through an outage the covariance grows with the model's noises, so the gate opens again
+by itself and the failsafe can act on the uncertainty.
 """
 
 from __future__ import annotations
@@ -328,6 +328,13 @@ class RigidBodyFilter:
         if not self.initialized:
             self._start(m, position, rotation)
             return True
+        if self._fault:
+            # The stream was judged untrustworthy (latched): the flight lands on the estimate alone. Judged on, the
+            # inflation that lets a shoved estimate catch up with its poses would open the gate, rejection after
+            # rejection, to the very track the fault is about (a body swapped for one moving 0.8 m off was fused
+            # after eight samples, and the V, flown towards it, tilted 60 deg).
+            self.rejected += 1
+            return False
         last, self._last_pose = self._last_pose, (m.t, position, rotation)
         if last is not None and m.t > last[0] and position == last[1] and rotation == last[2]:
             # A camera system measures with noise: the same pose twice to the last bit, newly timed, is a stream

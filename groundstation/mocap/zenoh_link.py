@@ -208,6 +208,9 @@ class PoseSubscriber:
         self.conflicts = 0
         """Samples taken right after one of another sequence under the same source id was rejected."""
         self.resyncs = 0
+        self.duplicates = 0
+        """Exact copies of the newest accepted sample (sequence, stamp and pose): delivered twice by a network or
+        a bridge, they say nothing new and nothing wrong, and are dropped."""
         self.last_rejection = ""
         """Why the newest rejected sample was rejected."""
         self._raw: list[tuple[float, bytes, float]] = []
@@ -281,6 +284,12 @@ class PoseSubscriber:
             return
         self.received += 1
         self._raw.append((now, payload, pose.stamp))
+        last = self._last
+        if (last is not None and pose.sequence == last.sequence and pose.stamp == last.stamp
+                and np.array_equal(pose.position, last.position) and np.array_equal(pose.rotation, last.rotation)):
+            # Not a sample behind the stream (a replay or a second sender would be): the same one again.
+            self.duplicates += 1
+            return
         if not self._stamps.believable(pose.stamp, before, now):
             self.rejected += 1
             self.bad_stamps += 1

@@ -145,6 +145,19 @@ def test_poses_that_stop_turning_while_the_gyros_turn_are_a_fault():
     assert "deg off the gyros' prediction" in why
 
 
+def test_after_the_fault_no_pose_is_fused_however_consistent_its_track():
+    """From 2 s the poses are another body's, 0.8 m off and moving as smoothly as the genuine one (a swap, a forger
+    with the source's id): rejected until the fault, then never fused, however wide the inflated gate grows; the
+    estimate stays on the true body (here at rest) instead of jumping to the other."""
+    truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
+    other = lambda t: (np.array([0.8 + 0.1 * t, 0.0, 1.0]), np.eye(3)) if t >= 2.0 else truth(t)  # noqa: E731
+    f = RigidBodyFilter(EstimatorSettings(), MASS)
+    states = _run(f, 4.0, truth, pose=other)
+    assert f.fault().startswith("every pose rejected for ")
+    assert f.last_fused_t < 2.0
+    assert max(np.linalg.norm(st.position - [0.0, 0.0, 1.0]) for _, st in states) < 0.01
+
+
 def test_without_poses_the_uncertainty_grows_and_shrinks_again_when_they_return():
     truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
     f = RigidBodyFilter(EstimatorSettings(), MASS)

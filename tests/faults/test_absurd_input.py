@@ -141,6 +141,22 @@ def f_absurd_flight_config_not_utf8(cli, tmp_path):
     _fly_refused(cli, tmp_path, cfg, "not UTF-8 text")
 
 
+@bad_input("fly with a flight config holding an array nested 5000 deep",
+           "exit 2 naming the file: nested deeper than the parser can follow (not a RecursionError traceback)")
+def f_absurd_flight_config_nested_5000_deep(cli, tmp_path):
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
+    cfg.write_text(cfg.read_text() + "\nx = " + "[" * 5000 + "]" * 5000 + "\n")
+    _fly_refused(cli, tmp_path, cfg, "invalid TOML: nested deeper than the parser can follow")
+
+
+@bad_input("simulate an assembly file holding a list nested 100000 deep",
+           "exit 2 naming the file: nested deeper than the parser can follow")
+def f_absurd_assembly_nested_100000_deep(cli, tmp_path):
+    asm = tmp_path / "deep.json"
+    asm.write_text("[" * 100000 + "]" * 100000)
+    _refused(cli, ("simulate", str(asm)), f"{asm}: invalid JSON: nested deeper than the parser can follow")
+
+
 @bad_input("fly with assembly = /dev/zero",
            "exit 2 naming the config, assembly and /dev/zero")
 def f_absurd_assembly_is_dev_zero(cli, tmp_path):

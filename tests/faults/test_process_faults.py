@@ -148,14 +148,14 @@ def f_sigterm_in_preflight(cli, tmp_path):
     assert r["complete"] and r["phase"] == "aborted" and r["reason"] == reason
 
 
-def _signalled_in_flight(cli, tmp_path, sig: signal.Signals, times: int, port: int):
-    """``fly`` sent ``sig`` ``times`` times (0.3 s apart) once airborne; (exit code, stderr, its log replayed), the
-    log's landing at the first signal checked."""
+def _signalled_in_flight(cli, tmp_path, signals: list[signal.Signals], port: int, lands_on: signal.Signals):
+    """``fly`` sent ``signals`` (0.3 s apart) once airborne; (exit code, stderr, its log replayed), the log's landing
+    on ``lands_on`` checked."""
     log = tmp_path / "signalled.mcap"
     proc = _fly_process(config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}"), log, "--duration", "2")
     try:
         _wait_until(lambda: _airborne(log), proc, "airborne")
-        for i in range(times):
+        for i, sig in enumerate(signals):
             time.sleep(0.3 * (i > 0))
             proc.send_signal(sig)
         out, err = _ended(proc)
@@ -163,30 +163,45 @@ def _signalled_in_flight(cli, tmp_path, sig: signal.Signals, times: int, port: i
         proc.kill()
     r = _replayed(cli, log)
     texts = [e["text"] for e in r["events"]]
-    assert any(t.endswith(f"-> landing: operator land ({sig.name})") for t in texts), texts
+    assert any(t.endswith(f"-> landing: operator land ({lands_on.name})") for t in texts), texts
     return proc.returncode, err, r
 
 
-for _sig, _port, _port2 in [(signal.SIGTERM, 7660, 7667), (signal.SIGHUP, 7668, 7669)]:
-    _why = {"SIGTERM": "a service manager stopping it", "SIGHUP": "an SSH session dropping, a terminal closed"}
-    _name = _sig.name.lower()
+def _landed(code: int, err: str, r: dict, sig: signal.Signals) -> None:
+    assert code == 0, err
+    assert r["complete"] and r["phase"] == "done" and r["reason"] == f"operator land ({sig.name})", r
+    assert any(e["text"] == "landing -> done: landed" for e in r["events"]), r["events"]
 
-    def _once(cli, tmp_path, sig=_sig, port=_port):
-        code, err, r = _signalled_in_flight(cli, tmp_path, sig, 1, port)
-        assert code == 0, err
-        assert r["complete"] and r["phase"] == "done" and r["reason"] == f"operator land ({sig.name})", r
-        assert any(e["text"] == "landing -> done: landed" for e in r["events"]), r["events"]
 
-    def _twice(cli, tmp_path, sig=_sig, port=_port2):
-        code, err, r = _signalled_in_flight(cli, tmp_path, sig, 2, port)
-        assert code == 1 and f"the flight ended in emergency: operator stop ({sig.name})" in err, err
-        assert r["complete"] and r["phase"] == "emergency" and r["reason"] == f"operator stop ({sig.name})", r
+@process_fault("SIGTERM to fly in flight (a service manager stopping it)",
+               "a landing, the log finalized with its reason operator land (SIGTERM); exit 0")
+def f_sigterm_in_flight(cli, tmp_path):
+    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGTERM], 7660, signal.SIGTERM), signal.SIGTERM)
 
-    _once.__name__, _twice.__name__ = f"f_{_name}_in_flight", f"f_{_name}_twice_in_flight"
-    process_fault(f"{_sig.name} to fly in flight ({_why[_sig.name]})", "a landing, the log finalized with its "
-                  f"reason operator land ({_sig.name}); exit 0")(_once)
-    process_fault(f"{_sig.name} twice to fly in flight", "landing at the first, motors off at the second; the end "
-                  f"(emergency, operator stop ({_sig.name})) in the log and in replay; exit 1")(_twice)
+
+@process_fault("SIGTERM twice to fly in flight",
+               "landing at the first, motors off at the second; the end (emergency, operator stop (SIGTERM)) in the "
+               "log and in replay; exit 1")
+def f_sigterm_twice_in_flight(cli, tmp_path):
+    code, err, r = _signalled_in_flight(cli, tmp_path, [signal.SIGTERM] * 2, 7667, signal.SIGTERM)
+    assert code == 1 and "the flight ended in emergency: operator stop (SIGTERM)" in err, err
+    assert r["complete"] and r["phase"] == "emergency" and r["reason"] == "operator stop (SIGTERM)", r
+
+
+@process_fault("SIGHUP twice to fly in flight, 0.3 s apart (an SSH session dropping: the kernel's hang-up and the "
+               "shell's)",
+               "a landing, never a stop (nobody is left to have asked for one); the log finalized with its reason "
+               "operator land (SIGHUP); exit 0")
+def f_sighup_twice_in_flight(cli, tmp_path):
+    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 7668, signal.SIGHUP), signal.SIGHUP)
+
+
+@process_fault("Ctrl-Z (SIGTSTP) in flight, after SIGTTIN and SIGTTOU (a backgrounded fly touching its terminal)",
+               "never stopped (by default each stops the process, the modules cut their motors and it falls): "
+               "SIGTTIN and SIGTTOU ignored, SIGTSTP a landing like Ctrl-C; exit 0")
+def f_sigtstp_in_flight(cli, tmp_path):
+    stops = [signal.SIGTTIN, signal.SIGTTOU, signal.SIGTSTP]
+    _landed(*_signalled_in_flight(cli, tmp_path, stops, 7669, signal.SIGTSTP), signal.SIGTSTP)
 
 
 @process_fault("the fly process killed (SIGKILL) in flight",
@@ -336,6 +351,25 @@ def f_degraded_beyond_quality_bound(cli, tmp_path):
     assert "the flight degraded beyond its bounds: attitude error p95" in err
     _, _, logs, _ = read_log(log)
     assert any(b"degraded beyond the flight's bounds" in d for _, d in logs)
+
+
+@process_fault("the log's directory removed in flight (rm -rf of the directory the flight writes to)",
+               "the flight lands as planned; the log reported gone (not a path to a file that no longer exists), "
+               "exit 1")
+def f_log_directory_removed_in_flight(cli, tmp_path):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    removed = []
+
+    def remove(t):
+        if t > 1.0 and not removed:
+            removed.append(t)
+            shutil.rmtree(logs)
+
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7670"), duration=2.0, log_path=logs / "gone.mcap",
+              on_period=remove)
+    assert removed and res.phase == "done" and res.reason == "", res.reason
+    assert not res.nominal and res.log_error.endswith("was removed or renamed during the flight"), res.log_error
 
 
 # -- long work ---------------------------------------------------------------------------------------------------

@@ -77,6 +77,24 @@ def test_a_stamp_far_from_its_arrival_cannot_open_the_gates(sessions, offset_s):
     assert sub.accepted == 25 and not sub.fault()
 
 
+def test_exact_copies_of_a_sample_are_dropped_not_a_second_sender(sessions):
+    """Every sample delivered five times (a bridge or network repeating itself: same bytes, same sequence): each
+    taken once, the copies counted, no conflict and no fault."""
+    a, b, c = sessions
+    sub = PoseSubscriber(b, KEY)
+    raw = a.declare_publisher(KEY)
+    time.sleep(0.3)
+    for seq in range(1, 31):
+        payload, attachment = encode(PoseSample(seq, time.time(), np.array([0.0, 0.0, 1.0]), np.eye(3)))
+        for _ in range(5):
+            raw.put(payload, attachment=attachment)
+        time.sleep(0.01)
+        sub.poll()
+    _wait(sub, 150)
+    assert sub.accepted == 30 and sub.duplicates == 120 and sub.conflicts == 0 and sub.rejected == 0
+    assert not sub.fault()
+
+
 def test_a_stamp_that_goes_backwards_is_rejected(sessions):
     """The next sequence number, the same pose, stamped 20 ms before the last sample (inside the 50 ms skew bound,
     so only the order tells): rejected and counted; the stream goes on."""

@@ -173,8 +173,9 @@ def test_a_flight_beyond_its_bounds_says_so_in_its_result_and_log(tmp_path):
 
 
 def test_signals_land_then_stop_and_before_the_loop_interrupt():
-    """Real signals to this process: the first asks to land (named), the second stops; before the loop started
-    (nothing armed) the second also interrupts whatever the flight waits for."""
+    """Real signals to this process: the first asks to land (named), the second stops, but a hang-up never does;
+    before the loop started (nothing armed) the second also interrupts whatever the flight waits for. Ctrl-Z
+    (SIGTSTP) is Ctrl-C; SIGTTIN and SIGTTOU are ignored (each would stop the process)."""
     import os
     import signal
     import threading
@@ -185,13 +186,18 @@ def test_signals_land_then_stop_and_before_the_loop_interrupt():
             started.set()
         restore = fly_module._install_signals(requests, started)
         try:
-            os.kill(os.getpid(), signal.SIGTERM)
-            assert requests.land.is_set() and not requests.stop.is_set() and requests.source == "SIGTERM"
+            os.kill(os.getpid(), signal.SIGTTIN)
+            os.kill(os.getpid(), signal.SIGTTOU)
+            assert not requests.land.is_set()
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert requests.land.is_set() and requests.source == "SIGHUP"
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert not requests.stop.is_set()
             if started_first:
-                os.kill(os.getpid(), signal.SIGHUP)
+                os.kill(os.getpid(), signal.SIGTSTP)
             else:
                 with pytest.raises(KeyboardInterrupt):
-                    os.kill(os.getpid(), signal.SIGHUP)
-            assert requests.stop.is_set() and requests.why("operator stop") == "operator stop (SIGHUP)"
+                    os.kill(os.getpid(), signal.SIGTSTP)
+            assert requests.stop.is_set() and requests.why("operator stop") == "operator stop (SIGTSTP)"
         finally:
             restore()
