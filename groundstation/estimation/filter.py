@@ -28,10 +28,10 @@ Innovation health: a measurement farther from the estimate than ``gate_sigma`` s
 ``inconsistent_s`` on end is a fault (:meth:`RigidBodyFilter.fault`): a pose frozen while the gyros turn, a body
 swapped for another, a forger's track. A rejected position multiplies the translation covariance by
 ``rejection_inflation`` (a fading memory): if the model, not the pose, was wrong (a shove, a thrust map far off),
-the gate has opened to the poses again after three or four samples, before the fault; a pose metres away stays out,
-and after the fault (latched) no pose is fused again. The attitude is not inflated: the gyros predict it too well
-for a frozen pose to pass. Through an outage the covariance grows with the model's noises, so the gate opens again
-by itself and the failsafe can act on the uncertainty.
+the gate has opened to the poses again after three or four samples, before the fault; the inflation is bounded
+(``max_inflation``), so a pose a metre away stays out, and after the fault (latched) no pose is fused again. The
+attitude is not inflated: the gyros predict it too well for a frozen pose to pass. Through an outage the covariance
+grows with the model's noises, so the gate opens again by itself and the failsafe can act on the uncertainty.
 """
 
 from __future__ import annotations
@@ -92,7 +92,11 @@ class EstimatorSettings:
     """...unless it is within this distance of the estimate, m (a shove the model did not see: 2 m/s^2 over a
     sample interval and a half)."""
     rejection_inflation: float = 4.0
-    """Factor on the translation covariance per rejected position (see the module docstring)."""
+    """Factor on the translation covariance per rejected position (see the module docstring)..."""
+    max_inflation: float = 256.0
+    """...up to this factor over one run of rejections (16x the std: from a converged 1 mm, a gate of ~10 cm; a
+    shove the model did not see moves the body a few cm before the fault's 50 ms). Unbounded, a body swapped for
+    one 0.8-1 m off was fused after seven or eight rejections, before the fault."""
     attitude_gate_floor: float = math.radians(1.5)
     """...or this angle, rad, ..."""
     gyro_delay: float = 0.0
@@ -224,6 +228,8 @@ class RigidBodyFilter:
         """The fused measurements of the last ``POSE_RATE_WINDOW_S`` (:meth:`pose_rate`)."""
         self._rejecting_since: float | None = None
         """Capture time of the first measurement of the current run of rejections."""
+        self._inflated = 1.0
+        """The factor the rejections since the last fused measurement multiplied the translation covariance by."""
         self._fault = ""
         self._innovation_position: Vec3 = (0.0, 0.0, 0.0)
         self._innovation_attitude: Vec3 = (0.0, 0.0, 0.0)
@@ -354,7 +360,9 @@ class RigidBodyFilter:
         miss = math.sqrt(dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2])
         self._innovation_position, self._innovation_attitude = dp, (0.0, 0.0, 0.0)
         if miss > max(s.gate_sigma * math.sqrt(s_p), s.position_gate_floor):
-            self._pt = [c * s.rejection_inflation for c in self._pt]
+            grow = min(s.rejection_inflation, s.max_inflation / self._inflated)
+            self._pt = [c * grow for c in self._pt]
+            self._inflated *= grow
             return self._reject(m.t, f"position {miss * 100:.1f} cm off the estimate")
         turning = self._rate()
         if turning is not None and m.t > tm:
@@ -376,6 +384,7 @@ class RigidBodyFilter:
             hist.insert(at + 1, [m.t, *_corrected(p_m, v_m, d_m, cp, cv, cd, 0.0),
                                  mat3_mul(r_m, mat3_from_rotvec(*ct)), a])
         self._rejecting_since = None
+        self._inflated = 1.0
         self.fused += 1
         self.last_fused_t = max(self.last_fused_t, m.t)
         self._keep_fused(m)
@@ -469,6 +478,11 @@ class RigidBodyFilter:
         elif t - self._rejecting_since >= self.settings.inconsistent_s and not self._fault:
             self._fault = (f"every pose rejected for {(t - self._rejecting_since) * 1e3:.0f} ms (last: {why}): "
                            f"frozen, swapped, forged or broken")
+            # The poses were wrong, not the model: the inflation that made room for a model error goes. Kept, it
+            # inflated the disturbance's variance too, and a blind landing's position uncertainty passed its 0.5 m
+            # bound 0.36 s after a swapped body's fault (motors off at 0.5 m).
+            self._pt = [c / self._inflated for c in self._pt]
+            self._inflated = 1.0
         return False
 
     # -- outputs ----------------------------------------------------------------------------------------------------

@@ -145,17 +145,27 @@ def test_poses_that_stop_turning_while_the_gyros_turn_are_a_fault():
     assert "deg off the gyros' prediction" in why
 
 
-def test_after_the_fault_no_pose_is_fused_however_consistent_its_track():
+def test_a_body_a_metre_off_is_never_fused_and_the_blind_estimate_stays_certain():
     """From 2 s the poses are another body's, 0.8 m off and moving as smoothly as the genuine one (a swap, a forger
-    with the source's id): rejected until the fault, then never fused, however wide the inflated gate grows; the
-    estimate stays on the true body (here at rest) instead of jumping to the other."""
+    with the source's id). The bounded inflation never opens the gate that wide (unbounded, it fused the other body
+    after eight rejections), the fault comes, and no pose is fused after it; the estimate stays on the true body
+    (at rest), its position uncertainty that of a blind estimate, not of the inflated one (which passed the blind
+    landing's 0.5 m bound in 0.36 s)."""
+    rng = np.random.default_rng(3)
     truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
-    other = lambda t: (np.array([0.8 + 0.1 * t, 0.0, 1.0]), np.eye(3)) if t >= 2.0 else truth(t)  # noqa: E731
+
+    def other(t):
+        p = np.array([0.8 + 0.1 * t, 0.0, 1.0]) if t >= 2.0 else truth(t)[0]
+        return p + rng.normal(0.0, MOCAP_NOISE[0], 3), np.eye(3)
+
     f = RigidBodyFilter(EstimatorSettings(), MASS)
-    states = _run(f, 4.0, truth, pose=other)
-    assert f.fault().startswith("every pose rejected for ")
+    states = _run(f, 2.0, truth, pose=other)
+    assert not f.fault() and f.last_fused_t > 1.98  # the genuine poses were fused
+    states += _run(f, 1.0, truth, pose=other, t0=2.0)
+    assert f.fault().startswith("every pose rejected for ") and "cm off the estimate" in f.fault()
     assert f.last_fused_t < 2.0
     assert max(np.linalg.norm(st.position - [0.0, 0.0, 1.0]) for _, st in states) < 0.01
+    assert f.estimate().position_sigma < 0.1  # 1 s blind
 
 
 def test_without_poses_the_uncertainty_grows_and_shrinks_again_when_they_return():
