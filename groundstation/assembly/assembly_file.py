@@ -149,10 +149,13 @@ def _numbers(value, src: str, key: str, shape: tuple[int | None, ...], finite: b
         raise ConfigError("not numeric (or rows of unequal length)", path=src, key=key) from None
     fits = arr.ndim == len(shape) and all(want is None or got == want for got, want in zip(arr.shape, shape,
                                                                                            strict=True))
-    if not fits or (finite and not np.all(np.isfinite(arr))):
-        want = "x".join("k" if d is None else str(d) for d in shape) or "one"
-        raise ConfigError(f"expected {want} {'finite ' if finite else ''}numbers, got shape "
-                          f"{'x'.join(map(str, arr.shape)) or 'scalar'}", path=src, key=key)
+    if not fits:
+        want = "x".join("k" if d is None else str(d) for d in shape)
+        raise ConfigError(f"expected {f'{want} numbers' if want else 'one number'}, got "
+                          f"{'x'.join(map(str, arr.shape)) or 'one'}", path=src, key=key)
+    if finite and not np.all(np.isfinite(arr)):  # "NaN" and "inf" as strings convert too
+        bad = arr[~np.isfinite(arr)].flat[0] if arr.ndim else arr
+        raise ConfigError(f"not a finite number: {float(bad)}", path=src, key=key)
     return arr
 
 

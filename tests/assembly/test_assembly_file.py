@@ -130,7 +130,9 @@ def _swap_verification_fields(r):
     (_swap_verification_fields, "verification.min_capsule_distance", "says 0.25, recomputed 0.2396"),
     (lambda r: r["verification"].update(feasible=False), "verification.feasible", "says False where feasible"),
     (lambda r: r.pop("u"), "u", "missing"),
-    (lambda r: r.update(weights=[1.0]), "weights", "expected 3 finite numbers, got shape 1"),
+    (lambda r: r.update(weights=[1.0]), "weights", "expected 3 numbers, got 1"),
+    (lambda r: r.update(mass_kg="NaN"), "mass_kg", "not a finite number: nan"),
+    (lambda r: r.update(angles_deg=[0.0, "inf", 0.0]), "angles_deg", "not a finite number: inf"),
 ])
 def test_a_tampered_design_file_is_refused_naming_the_key(tmp_path, edit, key, fragment):
     rec = json.loads(TOY.read_text())
