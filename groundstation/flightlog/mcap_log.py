@@ -178,6 +178,24 @@ def _stamp(t: float) -> Timestamp:
     return Timestamp(seconds=int(t), nanos=int((t % 1) * 1e9))
 
 
+def being_written(path: str | Path) -> bool:
+    """A log writer process holds ``path`` open now (its flight is under way, or its writer hung): the writer holds
+    an ``flock`` on the file for its life, which the kernel drops however the process ends."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:  # a filesystem without flock: nothing to tell
+        return False
+    finally:
+        os.close(fd)
+    return False
+
+
 def claim(path: str | Path) -> None:
     """Create ``path`` empty, exclusively (``O_EXCL``): of two processes claiming one path only one succeeds, the
     other gets :class:`FileExistsError`; an existing file is never touched. The writer then opens the claimed file
@@ -574,6 +592,8 @@ class _Writer:
         if os.fstat(fd).st_size:
             os.close(fd)
             raise FileExistsError(f"{path} is not empty: a flight log is never overwritten")
+        with contextlib.suppress(OSError):  # held for the writer's life: :func:`being_written`
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         self._fh = os.fdopen(fd, "wb")
         self._mcap = _mcap_writer(self._fh)
         self._mcap.start(profile="", library=LIBRARY)

@@ -25,6 +25,7 @@ from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.errors import ConfigError
+from groundstation.flightlog.mcap_log import being_written
 from groundstation.replay.reader import commands, is_mocap_pose, open_log
 from groundstation.rotations import quat_to_matrix
 from groundstation.runtime.metrics import FlightFigures, FlightMetrics, figures_of
@@ -33,6 +34,9 @@ from groundstation.runtime.plots import Series
 NO_END = ("the log has no end of flight: its flight process stopped before finishing it (killed, crashed, or its log "
           "writer failed first); the phase is the last one logged")
 """The reason of a log without the flight's summary: never an end in a phase with no reason."""
+STILL_WRITTEN = ("the log has no end of flight yet: its writer is still writing it (the flight under way, or its "
+                 "writer hung)")
+"""...while a log writer process still holds the file (:func:`~groundstation.flightlog.mcap_log.being_written`)."""
 SERIES_POINTS = 20_000
 """Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
 RATE_MIN_SPAN_S = 0.5
@@ -470,7 +474,8 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
         mocap_rate_hz=arrival_rate(arrived[(arrived >= metrics.t_first) & (arrived <= metrics.t_last)]),
         **{f"mocap_{k}": None if counts is None else counts[k] for k in MOCAP_COUNTS},
         duration_s=duration, tracked_s=track_last - track_first if track_first is not None else 0.0,
-        phase=summary.get("phase", last_phase), reason=summary.get("reason", "") if summary else NO_END,
+        phase=summary.get("phase", last_phase),
+        reason=summary.get("reason", "") if summary else STILL_WRITTEN if being_written(src) else NO_END,
         stalls=sum("loop stalled" in text for _, _, text in events), **modules.result(), **estimates.result(windowed))
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from groundstation.flightlog.mcap_log import WRITER_STALL_S
-from groundstation.replay.analysis import NO_END, analyse
+from groundstation.replay.analysis import NO_END, STILL_WRITTEN, analyse
 from groundstation.replay.reader import open_log
 from groundstation.runtime.fly import Faults, fly
 from tests.faults.table import Fault, process_fault, rows
@@ -202,6 +202,20 @@ def f_sighup_twice_in_flight(cli, tmp_path):
 def f_sigtstp_in_flight(cli, tmp_path):
     stops = [signal.SIGTTIN, signal.SIGTTOU, signal.SIGTSTP]
     _landed(*_signalled_in_flight(cli, tmp_path, stops, 7669, signal.SIGTSTP), signal.SIGTSTP)
+
+
+@process_fault("replay of a log while its flight is under way",
+               "the reason says its writer is still writing it (not that its flight process died); not complete")
+def f_replay_during_the_flight(cli, tmp_path):
+    log = tmp_path / "live.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), log)
+    try:
+        _wait_until(lambda: _airborne(log), proc, "airborne")
+        r = _replayed(cli, log)
+    finally:
+        proc.kill()
+        proc.wait(30)
+    assert not r["complete"] and r["reason"] == STILL_WRITTEN, r["reason"]
 
 
 @process_fault("the fly process killed (SIGKILL) in flight",

@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from groundstation.cli import main
-from groundstation.flightlog.mcap_log import FlightLog, recover
+from groundstation.flightlog.mcap_log import FlightLog, being_written, recover
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -41,6 +41,19 @@ def test_round_trip_counts(tmp_path):
     with open(path, "rb") as fh:
         msgs = [json.loads(m.data)["k"] for _, _, m in make_reader(fh).iter_messages(topics=["/count"])]
     assert msgs == list(range(500))
+
+
+def test_the_writer_holds_its_log_for_its_life(tmp_path):
+    """``being_written`` while the writer process has the file, not after it finished (nor of a file never
+    written by one)."""
+    path = tmp_path / "live.mcap"
+    with FlightLog(path, {"config": "{}"}) as log:
+        log.event("info", "hello", 1000.0)
+        deadline = time.monotonic() + 10.0
+        while not (path.exists() and path.stat().st_size > 100) and time.monotonic() < deadline:  # header, metadata
+            time.sleep(0.01)
+        assert being_written(path)
+    assert not being_written(path) and not being_written(tmp_path / "none.mcap")
 
 
 def _run_and_kill(path: Path, kill) -> tuple[dict[float, int], float]:
