@@ -6,10 +6,12 @@ import contextlib
 import itertools
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,32 +46,47 @@ HOST_FREEZE_S = 0.09
 """A CPU held off this long by the host, under a top-priority probe no guest thread can delay, is the machine
 stopping, not the ground station: this 2-core VM's hypervisor takes its CPUs away for ~100 ms under load
 (2026-12-02: the probes held off 100-101 ms during real-firmware flights, the loop stalls were 104-111 ms)."""
-MACHINE_STOPS = ("loop stalled", "no state")
-"""How a flight ends when the machine under it stops for ~100 ms: the loop's stall bound or a module link's
-timeout (both 100 ms: real modules stop their motors after 100 ms without commands)."""
+STOP_SLACK_S = 0.03
+"""How much longer than the host's freeze the stop it explains may be, s (the loop's own period and wake-up)."""
+
+
+@dataclass
+class Freezes:
+    """What the probes saw: each stall of a CPU over 50 ms (s), and whether every probe ran at top priority."""
+
+    lengths: list[float] = field(default_factory=list)
+    realtime: bool = True
 
 
 @contextlib.contextmanager
 def host_freezes():
-    """``benchmarks.cpu_stall_probe`` on each CPU while the block runs; the list it yields is filled on exit with
-    the length of every stall of a CPU over 50 ms, s."""
+    """``benchmarks.cpu_stall_probe`` on each CPU while the block runs; the :class:`Freezes` it yields is filled on
+    exit."""
     probes = [subprocess.Popen([sys.executable, "-m", "benchmarks.cpu_stall_probe", "--cpu", str(c), "--duration",
                                 "900", "--threshold-ms", "50"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
               for c in sorted(os.sched_getaffinity(0))]
-    frozen: list[float] = []
+    seen = Freezes()
     try:
-        yield frozen
+        yield seen
     finally:
         for probe in probes:
             probe.terminate()
-        frozen += [length for probe in probes for _, length in json.loads(probe.communicate(timeout=10)[0])["stalls"]]
+        for probe in probes:
+            report = json.loads(probe.communicate(timeout=10)[0])
+            seen.lengths += [length for _, length in report["stalls"]]
+            seen.realtime &= bool(report["realtime"])
 
 
-def stopped_by_host(reason: str, frozen: list[float]) -> bool:
-    """A flight that ended on ``reason`` was stopped by the machine, not by a fault of ours: it ended on a stall
-    or a silent link while a probe saw a CPU stop for :data:`HOST_FREEZE_S` or more. Stopping the motors is the
-    right answer to that (the ground station cannot tell a frozen machine from a frozen loop)."""
-    return any(stop in reason for stop in MACHINE_STOPS) and max(frozen, default=0.0) >= HOST_FREEZE_S
+def stopped_by_host(phase: str, reason: str, seen: Freezes) -> bool:
+    """A flight that ended in ``phase`` on ``reason`` was stopped by the machine, not by a fault of ours: motors
+    off on a loop stall or a silent link (``loop stalled N ms``, ``no state (for N ms)``) no longer than a freeze
+    that top-priority probes saw (:data:`HOST_FREEZE_S` or more) plus :data:`STOP_SLACK_S`. Stopping the motors is
+    the right answer to that (the ground station cannot tell a frozen machine from a frozen loop); a longer stall,
+    another ending, or probes that ran at normal priority (delayed by our own processes) excuse nothing."""
+    stall = re.search(r"(?:loop stalled|no state \(for) (\d+) ms", reason)
+    longest = max(seen.lengths, default=0.0)
+    return (phase == "emergency" and stall is not None and seen.realtime and longest >= HOST_FREEZE_S
+            and int(stall.group(1)) * 1e-3 <= longest + STOP_SLACK_S)
 
 
 def peer_process(tmp_path: Path, *args: str, as_world: bool = True) -> subprocess.Popen:

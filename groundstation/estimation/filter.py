@@ -28,10 +28,11 @@ Innovation health: a measurement farther from the estimate than ``gate_sigma`` s
 ``inconsistent_s`` on end is a fault (:meth:`RigidBodyFilter.fault`): a pose frozen while the gyros turn, a body
 swapped for another, a forger's track. A rejected position multiplies the translation covariance by
 ``rejection_inflation`` (a fading memory): if the model, not the pose, was wrong (a shove, a thrust map far off),
-the gate has opened to the poses again after three or four samples, before the fault; the inflation is bounded
-(``max_inflation``), so a pose a metre away stays out, and after the fault (latched) no pose is fused again. The
-attitude is not inflated: the gyros predict it too well for a frozen pose to pass. Through an outage the covariance
-grows with the model's noises, so the gate opens again by itself and the failsafe can act on the uncertainty.
+the gate has opened to the poses again after three or four samples, before the fault; only a pose the body could
+have reached inflates it (``max_model_accel``), so a pose a metre away stays out, and after the fault (latched) no
+pose is fused again. The attitude is not inflated: the gyros predict it too well for a frozen pose to pass. Through
+an outage the covariance grows with the model's noises, so the gate opens again by itself and the failsafe can act
+on the uncertainty.
 """
 
 from __future__ import annotations
@@ -93,10 +94,14 @@ class EstimatorSettings:
     sample interval and a half)."""
     rejection_inflation: float = 4.0
     """Factor on the translation covariance per rejected position (see the module docstring)..."""
-    max_inflation: float = 256.0
-    """...up to this factor over one run of rejections (16x the std: from a converged 1 mm, a gate of ~10 cm; a
-    shove the model did not see moves the body a few cm before the fault's 50 ms). Unbounded, a body swapped for
-    one 0.8-1 m off was fused after seven or eight rejections, before the fault."""
+    max_model_accel: float = 3.0 * GRAVITY
+    """...for a rejected pose the body could have reached: within ``position_gate_floor`` plus ``max_model_speed``
+    t plus this acceleration's ``t^2 / 2`` of the estimate, ``t`` after the last pose fused (a push, a tether, a
+    thrust map far off: the model, not the pose, may be wrong), m/s^2. A pose beyond that reach is no evidence
+    against the model and inflates nothing: a body swapped for another 0.8 m away was fused after eight
+    rejections before, ahead of the fault, and the V flown towards it tilted 60 deg."""
+    max_model_speed: float = 2.0
+    """The velocity error the estimate may carry into such a run of rejections, m/s."""
     attitude_gate_floor: float = math.radians(1.5)
     """...or this angle, rad, ..."""
     gyro_delay: float = 0.0
@@ -360,9 +365,10 @@ class RigidBodyFilter:
         miss = math.sqrt(dp[0] * dp[0] + dp[1] * dp[1] + dp[2] * dp[2])
         self._innovation_position, self._innovation_attitude = dp, (0.0, 0.0, 0.0)
         if miss > max(s.gate_sigma * math.sqrt(s_p), s.position_gate_floor):
-            grow = min(s.rejection_inflation, s.max_inflation / self._inflated)
-            self._pt = [c * grow for c in self._pt]
-            self._inflated *= grow
+            blind = m.t - self.last_fused_t
+            if miss <= s.position_gate_floor + (s.max_model_speed + 0.5 * s.max_model_accel * blind) * blind:
+                self._pt = [c * s.rejection_inflation for c in self._pt]
+                self._inflated *= s.rejection_inflation
             return self._reject(m.t, f"position {miss * 100:.1f} cm off the estimate")
         turning = self._rate()
         if turning is not None and m.t > tm:

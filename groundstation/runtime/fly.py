@@ -319,7 +319,7 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     """Fly the config at ``config_path``; see the module docstring. ``activity`` lets a caller's own background
     thread (e.g. a status display) work between control periods, like the log writer does. ``live_port``: serve
     the log's channels over the Foxglove WebSocket protocol on 127.0.0.1 while flying (from the writer process).
-    ``handle_signals``: SIGINT, SIGTERM and SIGHUP land (or, before arming, end the flight unarmed), from the
+    ``handle_signals``: SIGINT, SIGTERM, SIGTSTP and SIGHUP land (or, before arming, end the flight unarmed), from the
     start. How far a flight may degrade and still be nominal (:attr:`FlyResult.degraded`): the config's
     ``[quality]``.
 
@@ -415,8 +415,12 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
             _release(p.log_file)
         raise
     log_error = log.error
-    if log_error is None and not p.log_file.exists():  # the writer wrote to a file no path leads to any more
-        log_error = f"{p.log_file} is gone: it, or its directory, was removed or renamed during the flight"
+    try:
+        p.log_file.lstat()
+    except FileNotFoundError:  # the writer wrote to a file no path leads to now
+        log_error = log_error or f"{p.log_file} is gone: it, or its directory, was removed or renamed during the flight"
+    except OSError:  # cannot tell (a directory made unreadable, a stale NFS handle): not a verdict
+        pass
     return FlyResult(p.log_file, phase, reason, metrics, flight.events if flight is not None else [], log_error,
                      getattr(log, "rejected", {}), degraded)  # (benchmarks.sdk_log's stand-in counts none)
 
@@ -482,6 +486,8 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
     _stop_if_asked(requests)
     if sub.fault():
         issues.append(f"mocap: {sub.fault()}")
+    if est.fault():  # latched: the flight would take off blind on an estimate its poses disown
+        issues.append(f"mocap: {est.fault()}")
     if s is None:
         issues.append(f"mocap does not see '{m.body}' on {p.key} via {m.endpoint}")
     else:
@@ -543,16 +549,21 @@ def _install_signals(requests: Requests, started: threading.Event):
     function restoring the old handlers.
 
     * SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process, rotors on.
-      It never escalates to a stop: one hang-up can deliver two (the kernel's to the foreground group and the
-      shell's to its jobs), and nobody is left at the terminal to have asked for one.
+      It never escalates to a stop, nor does a SIGTERM after it: one hang-up can deliver two (the kernel's to the
+      foreground group and the shell's to its jobs), a session's end a SIGTERM after it (systemd-logind with
+      ``KillUserProcesses``), and nobody is left at the terminal to have asked for a stop (Ctrl-C and Ctrl-Z
+      still do).
     * SIGTSTP is Ctrl-Z: by default it stops the process, the modules' watchdogs cut the motors and the assembly
       falls (measured: from 1 m, 3.9 m/s at impact); here it is Ctrl-C.
     * SIGTTIN and SIGTTOU stop a background process that touches its terminal (``fly ... &`` reading its keys):
-      ignored, so such a read or write fails instead."""
+      ignored, so such a read fails (EIO) and a write goes through instead."""
     if threading.current_thread() is not threading.main_thread():
         return None
 
     def handler(signum, frame):
+        hung_up = requests.land.is_set() and requests.source == "SIGHUP"
+        if hung_up and signum not in (signal.SIGINT, signal.SIGTSTP):
+            return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on
         requests.source = signal.Signals(signum).name
         if requests.land.is_set() and signum != signal.SIGHUP:
             requests.stop.set()

@@ -145,6 +145,20 @@ def test_poses_that_stop_turning_while_the_gyros_turn_are_a_fault():
     assert "deg off the gyros' prediction" in why
 
 
+@pytest.mark.parametrize("shove_m, over_s", [(0.1, 0.05), (0.15, 0.05)])
+def test_a_shove_the_model_did_not_see_is_followed(shove_m, over_s):
+    """The body shoved sideways by ``shove_m`` in ``over_s`` (2-3 m/s: a knock): its poses are ones it could have
+    reached, the gate opens to them before the fault, and the estimate follows within a few mm."""
+    def shoved(t):
+        return np.array([shove_m * min(max(t - 3.0, 0.0) / over_s, 1.0), 0.0, 2.5]), np.eye(3)
+
+    f = RigidBodyFilter(EstimatorSettings(), MASS)
+    _run(f, 3.0, shoved)
+    out = _run(f, 2.0, shoved, t0=3.0)
+    assert not f.fault()
+    assert max(abs(st.position[0] - shoved(t)[0][0]) for t, st in out[50:]) < 0.005
+
+
 def test_a_body_a_metre_off_is_never_fused_and_the_blind_estimate_stays_certain():
     """From 2 s the poses are another body's, 0.8 m off and moving as smoothly as the genuine one (a swap, a forger
     with the source's id). The bounded inflation never opens the gate that wide (unbounded, it fused the other body

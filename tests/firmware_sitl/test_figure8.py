@@ -61,11 +61,11 @@ class HostStopped(Exception):
 
 def fly_to_done(cfg) -> float:
     """``fly --json`` once; its position RMSE, m. Raises :class:`HostStopped` for a flight the machine stopped."""
-    with host_freezes() as frozen:
+    with host_freezes() as seen:
         flown = groundstation("fly", str(cfg), "--json")
     summary = json.loads(flown.stdout)
-    if flown.returncode != 0 and stopped_by_host(summary["reason"], frozen):
-        raise HostStopped(f"{summary['reason']} (a CPU held off {max(frozen) * 1e3:.0f} ms by the host)")
+    if flown.returncode != 0 and stopped_by_host(summary["phase"], summary["reason"], seen):
+        raise HostStopped(f"{summary['reason']} (a CPU held off {max(seen.lengths) * 1e3:.0f} ms by the host)")
     assert flown.returncode == 0 and summary["phase"] == "done" and summary["reason"] == "", flown.stderr
     return summary["pos_rmse_m"]
 

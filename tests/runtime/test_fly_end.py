@@ -173,7 +173,8 @@ def test_a_flight_beyond_its_bounds_says_so_in_its_result_and_log(tmp_path):
 
 
 def test_signals_land_then_stop_and_before_the_loop_interrupt():
-    """Real signals to this process: the first asks to land (named), the second stops, but a hang-up never does;
+    """Real signals to this process: the first asks to land (named), the second stops, but a hang-up never does
+    (nor a SIGTERM after it);
     before the loop started (nothing armed) the second also interrupts whatever the flight waits for. Ctrl-Z
     (SIGTSTP) is Ctrl-C; SIGTTIN and SIGTTOU are ignored (each would stop the process)."""
     import os
@@ -192,7 +193,8 @@ def test_signals_land_then_stop_and_before_the_loop_interrupt():
             os.kill(os.getpid(), signal.SIGHUP)
             assert requests.land.is_set() and requests.source == "SIGHUP"
             os.kill(os.getpid(), signal.SIGHUP)
-            assert not requests.stop.is_set()
+            os.kill(os.getpid(), signal.SIGTERM)  # a session's end after the hang-up
+            assert not requests.stop.is_set() and requests.source == "SIGHUP"
             if started_first:
                 os.kill(os.getpid(), signal.SIGTSTP)
             else:
