@@ -331,19 +331,25 @@ class Replay:
     rerun: RerunFigures | None
 
 
-def _config(metadata: dict, src: str) -> dict:
+def _metadata_json(metadata: dict, src: str, key: str, default: str, kind: type):
+    """The log's ``key`` metadata, parsed: a JSON ``kind`` (or null); else a ConfigError naming file and key."""
     try:
-        return json.loads(metadata.get("config", "{}"))
-    except ValueError:
-        raise ConfigError("the log's config metadata is not JSON", path=src, key="config") from None
+        value = json.loads(metadata.get(key, default) or default)
+    except (ValueError, RecursionError):
+        raise ConfigError(f"the log's {key} metadata is not JSON", path=src, key=key) from None
+    if value is not None and not isinstance(value, kind):
+        raise ConfigError(f"the log's {key} metadata is not a JSON object", path=src, key=key)
+    return value
+
+
+def log_config(metadata: dict, src: str) -> dict:
+    """The flight config the log was flown with (its ``config`` metadata)."""
+    return _metadata_json(metadata, src, "config", "{}", dict) or {}
 
 
 def _assembly(metadata: dict, src: str) -> dict | None:
     """The log's assembly record (None: a log written before the assembly was metadata)."""
-    try:
-        return json.loads(metadata.get("assembly", "null"))
-    except ValueError:
-        raise ConfigError("the log's assembly metadata is not JSON", path=src, key="assembly") from None
+    return _metadata_json(metadata, src, "assembly", "null", dict)
 
 
 MOCAP_COUNTS = ("rejected", "malformed", "missed")
@@ -415,7 +421,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             if metrics is None:
                 metrics = FlightMetrics(len(d["modules"]))
                 if rerun:
-                    rr = Rerun(_assembly(log.metadata, src), _config(log.metadata, src),
+                    rr = Rerun(_assembly(log.metadata, src), log_config(log.metadata, src),
                                gains, allocation, src)
             if d["phase"] == Phase.TRACK:
                 track_first = t if track_first is None else track_first
@@ -481,7 +487,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
                np.array([r[3] for r in rows]).reshape(-1, 3, 3), np.array([r[4] for r in rows]),
                np.array([r[5] for r in rows]), np.array([r[6] for r in rows]))
-    meta = {"config": _config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
+    meta = {"config": log_config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
             "config_path": log.metadata.get("config_path", ""), "assembly": _assembly(log.metadata, src),
             "started_s": offset}
     return Replay(Path(path), log.complete, log.warnings, meta, m, events, timeline, s,

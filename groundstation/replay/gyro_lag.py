@@ -12,7 +12,6 @@ no delay to find (the match is then flat, and said to be: :data:`SHARPNESS`).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from groundstation.control.phase import Phase
 from groundstation.errors import ConfigError
+from groundstation.replay.analysis import log_config
 from groundstation.replay.reader import open_log
 from groundstation.rotations import matrix_to_rotvec, quat_to_matrix
 
@@ -81,11 +81,13 @@ def gyro_lag(path: str | Path) -> GyroLag:
     if len(stamps) < 3 or len(periods) < 3:
         raise ConfigError(f"the log has {len(stamps)} poses and {len(periods)} airborne control periods: no gyro "
                           f"delay to find", path=src)
+    config = log_config(log.metadata, src)
     try:
-        config = json.loads(log.metadata.get("config", "{}") or "{}")
-    except ValueError:
-        raise ConfigError("the log's config metadata is not JSON", path=src, key="config") from None
-    latency = float(config.get("mocap", {}).get("latency_s", 0.0))
+        latency = float(config.get("mocap", {}).get("latency_s", 0.0))
+        configured = float(config.get("backend", {}).get("gyro_delay_s", 0.0))
+    except (AttributeError, TypeError, ValueError):  # a section that is not a table, a value that is not a number
+        raise ConfigError("the log's config has no usable mocap.latency_s or backend.gyro_delay_s", path=src,
+                          key="config") from None
     stamps_a = np.array(stamps)
     captured = stamps_a + np.min(np.array(arrivals) - stamps_a) - latency
     k = max(1, round(BASELINE_S / max(float(np.median(np.diff(stamps_a))), 1e-6)))
@@ -114,6 +116,6 @@ def gyro_lag(path: str | Path) -> GyroLag:
     best = int(np.argmin(scores))
     step = round(0.01 / (LAGS_S[1] - LAGS_S[0]))
     beside = min(scores[max(best - step, 0)], scores[min(best + step, len(scores) - 1)])
-    return GyroLag(float(LAGS_S[best]), float(config.get("backend", {}).get("gyro_delay_s", 0.0)), scores[best],
+    return GyroLag(float(LAGS_S[best]), configured, scores[best],
                    rms(0.0), float(np.sqrt(np.mean(np.sum(rates ** 2, axis=1)))), len(t0),
                    beside / max(scores[best], 1e-12))

@@ -57,6 +57,7 @@ class LogFile:
         channels: dict[int, Channel] = {}
         size = max(self.path.stat().st_size, 1)
         scan = LogScan(self.path)
+        undecodable: dict[str, int] = {}
         for count, rec in enumerate(scan.records(), 1):
             if progress is not None and count % 5000 == 0:
                 progress(scan.position / size)
@@ -67,8 +68,15 @@ class LogFile:
             elif isinstance(rec, Message):
                 ch = channels[rec.channel_id]  # the scan hands out no message before its channel
                 if topics is None or ch.topic in topics:
-                    yield LogRecord(ch.topic, rec.log_time * 1e-9, rec.publish_time * 1e-9, _decode(ch, rec.data))
-        self.complete, self.warnings = scan.complete, tuple(scan.warnings())
+                    try:
+                        data = _decode(ch, rec.data)
+                    except (ValueError, RecursionError):  # intact bytes (its CRC holds) that no writer of ours wrote
+                        undecodable[ch.topic] = undecodable.get(ch.topic, 0) + 1
+                        continue
+                    yield LogRecord(ch.topic, rec.log_time * 1e-9, rec.publish_time * 1e-9, data)
+        self.complete = scan.complete and not undecodable
+        self.warnings = tuple(scan.warnings()) + tuple(f"{n} message(s) on {topic} are not what the topic holds "
+                                                       f"(not JSON): skipped" for topic, n in undecodable.items())
 
 
 _UNITS = {"position": "position_m", "velocity": "velocity_mps", "acceleration": "acceleration_mps2",

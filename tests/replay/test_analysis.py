@@ -149,8 +149,8 @@ def test_window(sim_flight, tmp_path):
 
 def copy_log(src, dst, drop: set[str] = frozenset(), record=None, metadata: dict[str, str] | None = None) -> None:
     """The log minus the channels ``drop`` and without the summary (as if written by an older writer), each JSON
-    record through ``record(topic, record)`` when given, and the metadata values of ``metadata`` in place of the
-    log's."""
+    record through ``record(topic, record)`` when given (bytes it returns are written as they are), and the
+    metadata values of ``metadata`` in place of the log's."""
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
 
@@ -169,9 +169,51 @@ def copy_log(src, dst, drop: set[str] = frozenset(), record=None, metadata: dict
                                else dict(rec.metadata))
             elif isinstance(rec, Message) and rec.channel_id in channels:
                 cid, topic, is_json = channels[rec.channel_id]
-                data = json.dumps(record(topic, json.loads(rec.data))).encode() if is_json and record else rec.data
+                data = rec.data
+                if is_json and record:  # a record hook may also hand back bytes: written as they are
+                    data = record(topic, json.loads(rec.data))
+                    data = data if isinstance(data, bytes) else json.dumps(data).encode()
                 w.add_message(cid, rec.log_time, data, rec.publish_time)
         w.finish()
+
+
+@pytest.mark.parametrize("key, value, fragment", [
+    ("config", "[" * 100000, "the log's config metadata is not JSON"),
+    ("config", "[1]", "the log's config metadata is not a JSON object"),
+    ("assembly", "[" * 100000, "the log's assembly metadata is not JSON"),
+    ("assembly", '"x"', "the log's assembly metadata is not a JSON object")])
+def test_metadata_that_is_not_a_json_object_is_named(sim_flight, tmp_path, cli, key, value, fragment):
+    """Nested too deep for the parser (a RecursionError traceback before), or JSON of the wrong shape (an
+    AttributeError): one line naming the file and key, exit 2."""
+    bad = tmp_path / "bad.mcap"
+    copy_log(sim_flight[1], bad, metadata={key: value})
+    code, _, err = cli("replay", str(bad))
+    assert code == 2 and err.count("\n") == 1 and f"{bad}: {key}: {fragment}" in err, err
+
+
+def test_gyro_lag_of_a_config_whose_sections_are_not_tables(sim_flight, tmp_path, cli):
+    bad = tmp_path / "bad.mcap"
+    copy_log(sim_flight[1], bad, metadata={"config": '{"mocap": 5}'})
+    code, _, err = cli("replay", str(bad), "--gyro-lag")
+    assert code == 2 and err.count("\n") == 1 and "config: the log's config has no usable mocap" in err, err
+
+
+def test_a_record_that_is_not_json_is_skipped_with_a_warning(sim_flight, tmp_path):
+    """Intact bytes (their CRC holds) that are not what the topic holds: skipped, counted in a warning, the log not
+    complete; every other period read."""
+    res, log = sim_flight
+    bad, first = tmp_path / "bad.mcap", []
+
+    def spoil(topic, rec):
+        if topic == "/control" and not first:
+            first.append(rec)
+            return b"[" * 100000
+        return rec
+
+    copy_log(log, bad, record=spoil)
+    r = analyse(bad)
+    assert r.metrics.periods == analyse(log).metrics.periods - 1
+    assert not r.complete and "1 message(s) on /control are not what the topic holds (not JSON): skipped" in r.warnings
 
 
 def test_log_without_telemetry_channels(sim_flight, tmp_path):
