@@ -331,25 +331,25 @@ class Replay:
     rerun: RerunFigures | None
 
 
-def _metadata_json(metadata: dict, src: str, key: str, default: str, kind: type):
-    """The log's ``key`` metadata, parsed: a JSON ``kind`` (or null); else a ConfigError naming file and key."""
+def _metadata_json(metadata: dict, src: str, key: str, default: str) -> dict | None:
+    """The log's ``key`` metadata, parsed: a JSON object (or null); else a ConfigError naming file and key."""
     try:
         value = json.loads(metadata.get(key, default) or default)
     except (ValueError, RecursionError):
         raise ConfigError(f"the log's {key} metadata is not JSON", path=src, key=key) from None
-    if value is not None and not isinstance(value, kind):
+    if value is not None and not isinstance(value, dict):
         raise ConfigError(f"the log's {key} metadata is not a JSON object", path=src, key=key)
     return value
 
 
 def log_config(metadata: dict, src: str) -> dict:
     """The flight config the log was flown with (its ``config`` metadata)."""
-    return _metadata_json(metadata, src, "config", "{}", dict) or {}
+    return _metadata_json(metadata, src, "config", "{}") or {}
 
 
 def _assembly(metadata: dict, src: str) -> dict | None:
     """The log's assembly record (None: a log written before the assembly was metadata)."""
-    return _metadata_json(metadata, src, "assembly", "null", dict)
+    return _metadata_json(metadata, src, "assembly", "null")
 
 
 MOCAP_COUNTS = ("rejected", "malformed", "missed")
