@@ -26,6 +26,7 @@ from groundstation.cli.common import (
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
+from groundstation.runtime.terminal import forget_lost_terminal
 
 EXIT_EMERGENCY = 1
 """A failsafe landing, an emergency stop, a flight that did not start (refused arming, the operator before
@@ -94,6 +95,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
                          handle_signals=True, activity=activity, live_port=live_port)
     finally:
         done.set()
+        forget_lost_terminal()  # hung up in flight (the signal handler saw a live terminal) or after it
         if live is not None:
             renderer.join(2.0)
             live.stop()

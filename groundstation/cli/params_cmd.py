@@ -38,7 +38,7 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
     n = len(cfg.backend.modules)
     with stderr_console().status("connecting") as status:
         checks = check_modules(cfg.backend, wanted, apply=apply, cache_dir=(base / cfg.log_dir).resolve(),
-                               on_module=lambda i: status.update(f"module {i + 1}/{n}: {cfg.backend.modules[i]}"))
+                               on_module=lambda done: status.update(f"modules checked: {done}/{n}"))
     if as_json:
         click.echo(json.dumps([asdict(c) | {"ok": c.ok} for c in checks]))
     else:

@@ -16,7 +16,7 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from cflib.crazyflie import Crazyflie
@@ -88,47 +88,79 @@ class _RepeatingCrazyflie(Crazyflie):
 
 class _Unparsed(logging.Filter):
     """Counts, and keeps off the terminal, the tracebacks cflib logs when a packet breaks one of its callbacks:
-    a link that is not a Crazyflie's (a PX4 module speaking MAVLink answered with thousands of them)."""
+    a link that is not a Crazyflie's (a PX4 module speaking MAVLink answered with thousands of them). Counted per
+    thread, since modules are checked at once: cflib logs them on the connection's own packet thread
+    (``Crazyflie.incoming``)."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.count = 0
+        self._counts: dict[int | None, int] = {}
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.getMessage().startswith("Exception while doing callback"):
-            self.count += 1
+            self._counts[record.thread] = self._counts.get(record.thread, 0) + 1
             return False
         return True
+
+    def count(self, cf: Crazyflie) -> int:
+        """How many came from ``cf``'s connection."""
+        return self._counts.get(cf.incoming.ident, 0)
+
+
+_UNPARSED = _Unparsed()
+_UNPARSED_USERS = [0]
+_UNPARSED_LOCK = threading.Lock()
 
 
 @contextlib.contextmanager
 def _counting_unparsed():
-    unparsed = _Unparsed()
+    """:data:`_UNPARSED` on cflib's logger while any module's check runs (one filter for every thread)."""
     log = logging.getLogger("cflib.crazyflie")
-    log.addFilter(unparsed)
+    with _UNPARSED_LOCK:
+        if _UNPARSED_USERS[0] == 0:
+            log.addFilter(_UNPARSED)
+        _UNPARSED_USERS[0] += 1
     try:
-        yield unparsed
+        yield _UNPARSED
     finally:
-        log.removeFilter(unparsed)
+        with _UNPARSED_LOCK:
+            _UNPARSED_USERS[0] -= 1
+            if _UNPARSED_USERS[0] == 0:
+                log.removeFilter(_UNPARSED)
 
 
-def _connect(uri: str, timeout: float, cache: str | None,
-             foreign: Callable[[], bool] = lambda: False) -> tuple[Crazyflie | None, str]:
-    """A fully connected ``Crazyflie`` (TOC and values downloaded), or None and why not. The set-up's first request
-    (the protocol version) is one cflib never repeats: without an answer within ``FIRST_ANSWER_S`` the attempt ends
-    early, so a lost packet costs a second, not the whole timeout. So does ``foreign()`` turning true (the link
-    answers with what is not CRTP: waiting for a table of contents that never comes took 5 s a module)."""
+@dataclass(frozen=True)
+class _Attempt:
+    """One connection attempt's outcome."""
+
+    cf: Crazyflie | None
+    """Connected (tables of contents and values downloaded), or None."""
+    why: str = ""
+    """Why not."""
+    again: bool = False
+    """Worth another attempt: nothing answered (a lost first packet), or cflib gave up on the link. Not when the
+    module answered and its parameters never came (a module without the parameter service: five more waits of the
+    whole timeout took 25 s a module), nor when what answered is not a Crazyflie."""
+    unparsed: int = 0
+    """Packets that broke cflib's callbacks on this attempt."""
+
+
+def _connect(uri: str, timeout: float, cache: str | None, unparsed: _Unparsed) -> _Attempt:
+    """Connect to ``uri``. The set-up's first request (the protocol version) is one cflib never repeats: without an
+    answer within ``FIRST_ANSWER_S`` the attempt ends early, so a lost packet costs a second, not the whole timeout.
+    So do more than ``FOREIGN_PACKETS`` that cflib cannot parse (the link answers with what is not CRTP: waiting
+    for a table of contents that never comes took 5 s a module)."""
     cf = _RepeatingCrazyflie(rw_cache=cache)
-    ready, answered = threading.Event(), threading.Event()
+    ready, woken, answered = threading.Event(), threading.Event(), threading.Event()
     failure: list[str] = []
-    cf.link_established.add_callback(lambda _uri: answered.set())
+    cf.link_established.add_callback(lambda _uri: (answered.set(), woken.set()))
     cf.fully_connected.add_callback(lambda _uri: ready.set())
     cf.connection_failed.add_callback(lambda _uri, msg: (failure.append(str(msg).splitlines()[0]), ready.set(),
-                                                         answered.set()))
+                                                         woken.set()))
     cf.open_link(uri)
     deadline = time.monotonic() + timeout
-    if answered.wait(min(FIRST_ANSWER_S, timeout)):
-        while not ready.wait(0.05) and not foreign() and time.monotonic() < deadline:
+    if woken.wait(min(FIRST_ANSWER_S, timeout)):
+        while not ready.wait(0.05) and unparsed.count(cf) <= FOREIGN_PACKETS and time.monotonic() < deadline:
             pass
     if ready.is_set() and not failure:
         # cflib pings every link it connects 10 times a second (link statistics, 0.1.34). A module answers to
@@ -136,9 +168,15 @@ def _connect(uri: str, timeout: float, cache: str | None,
         # another socket; and a ping sent while the link closed printed a thread's traceback ("Bad file
         # descriptor", then "cannot join current thread") on the pilot's terminal.
         cf.link_statistics.stop()
-        return cf, ""
+        return _Attempt(cf)
+    foreign = unparsed.count(cf)
     _close(cf)
-    return None, failure[0] if failure else f"no answer within {timeout:g} s"
+    if failure:
+        return _Attempt(None, failure[0], again=not foreign, unparsed=foreign)
+    if answered.is_set():
+        return _Attempt(None, f"it answered, but its parameters did not arrive within {timeout:g} s",
+                        unparsed=foreign)
+    return _Attempt(None, f"no answer within {FIRST_ANSWER_S:g} s", again=True)
 
 
 def _close(cf: Crazyflie) -> None:
@@ -197,16 +235,20 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
     if toc_cache is not None:
         toc_cache.mkdir(parents=True, exist_ok=True)
         cache = str(toc_cache)
-    cf, why = None, ""
     with _counting_unparsed() as unparsed:
-        for _ in range(ATTEMPTS):
-            cf, why = _connect(uri, timeout, cache, lambda: unparsed.count > FOREIGN_PACKETS)
-            if cf is not None or unparsed.count:
-                break  # answered, or by something that is not a Crazyflie: no use asking again
+        tried = 0
+        while tried < ATTEMPTS:
+            tried += 1
+            attempt = _connect(uri, timeout, cache, unparsed)
+            if not attempt.again:
+                break
+    cf, why = attempt.cf, attempt.why
     if cf is None:
-        if unparsed.count:
-            why = (f"not a Crazyflie on this link: it sends packets cflib cannot parse ({unparsed.count}; a MAVLink "
-                   f"module?)")
+        if attempt.unparsed:
+            why = (f"not a Crazyflie on this link: it sends packets cflib cannot parse ({attempt.unparsed}; a "
+                   f"MAVLink module?)")
+        elif tried > 1:
+            why += f" ({tried} attempts)"
         return [ParamCheck(module, uri, n, v, None, note=why, unreachable=True) for n, v in wanted.items()]
     values = _Values()
     try:

@@ -85,6 +85,7 @@ from groundstation.runtime.flight_config import (
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopStats, WallClock, realtime_priority
 from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 from groundstation.runtime.placement import placement_issues
+from groundstation.runtime.terminal import forget_lost_terminal
 
 PREFLIGHT_TIMEOUT_S = 3.0
 GIL_SWITCH_S = 1e-4
@@ -561,6 +562,8 @@ def _install_signals(requests: Requests, started: threading.Event):
         return None
 
     def handler(signum, frame):
+        if signum == signal.SIGHUP:
+            forget_lost_terminal()  # every later write to it would fail (EIO) and end the command in a traceback
         hung_up = requests.land.is_set() and requests.source == "SIGHUP"
         if hung_up and signum not in (signal.SIGINT, signal.SIGTSTP):
             return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on

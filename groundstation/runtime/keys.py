@@ -7,15 +7,19 @@ terminal that goes away (end of file, a read error) ends the reader, not the fli
 
 from __future__ import annotations
 
+import errno
 import os
 import select
 import sys
 import threading
 
 from groundstation.runtime.flight import Requests
+from groundstation.runtime.terminal import terminal_lost
 
 KILL_KEYS = "kK"
 LAND_KEYS = "lL"
+BACKGROUND_RETRY_S = 0.2
+"""How often a reader refused by a terminal it is in the background of tries again, s."""
 
 
 class KeyReader:
@@ -52,8 +56,14 @@ class KeyReader:
                 if not ready:
                     continue
                 data = os.read(fd, 1)
-            except OSError:
-                return  # the terminal went away
+            except OSError as exc:
+                if exc.errno != errno.EIO or terminal_lost(fd):
+                    return  # the terminal went away
+                # A live terminal answers EIO to a read from a background process group (SIGTTIN is ignored in
+                # flight): Ctrl-Z stopped a wrapper script and its shell resumed it behind another job. Keys
+                # work again after `fg`.
+                self._stop.wait(BACKGROUND_RETRY_S)
+                continue
             if not data:
                 return  # end of file: no more keys (and no busy loop on a readable EOF)
             key = data.decode(errors="ignore")

@@ -11,12 +11,17 @@ status that says what happened (0 nominal, 1 failsafe or not started, 3 degraded
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
+import pty
+import select
 import shutil
 import signal
 import subprocess
 import sys
+import termios
+import threading
 import time
 from pathlib import Path
 
@@ -194,6 +199,44 @@ def f_sigterm_twice_in_flight(cli, tmp_path):
                "operator land (SIGHUP); exit 0")
 def f_sighup_twice_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 7668, signal.SIGHUP), signal.SIGHUP)
+
+
+@process_fault("the terminal hanging up in flight (fly on a pseudo-terminal whose other end closes: an SSH "
+               "connection dropping; the kernel's SIGHUP, then EIO on every write to it)",
+               "a landing; the status line's last redraw and the summary's lines go nowhere instead of ending the "
+               "command in a traceback; the log finalized with operator land (SIGHUP); exit 0")
+def f_terminal_hangs_up_in_flight(cli, tmp_path):
+    log = tmp_path / "hung_up.mcap"
+    master, slave = pty.openpty()
+    out_path = tmp_path / "hung_up.out"
+    with out_path.open("w") as out:  # the summary as JSON, to see what the flight says; the rest on the terminal
+        proc = subprocess.Popen([sys.executable, "-m", "groundstation", "fly",
+                                 str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7672")), "--log", str(log),
+                                 "--json", "--duration", "2"], stdin=slave, stdout=out, stderr=slave, cwd=ROOT,
+                                start_new_session=True,  # a session of its own, the terminal its controlling one
+                                preexec_fn=lambda: fcntl.ioctl(0, termios.TIOCSCTTY, 0))
+    os.close(slave)
+    drained = threading.Event()
+
+    def drain():  # a terminal emulator reads what is drawn; a full terminal would block the writer
+        while not drained.is_set():
+            if select.select([master], [], [], 0.05)[0]:
+                with contextlib.suppress(OSError):
+                    os.read(master, 65536)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        _wait_until(lambda: _airborne(log), proc, "airborne")
+        drained.set()
+        reader.join(5.0)
+        os.close(master)  # the connection drops
+        proc.wait(120)
+    finally:
+        proc.kill()
+    summary = json.loads(out_path.read_text())
+    assert proc.returncode == 0 and summary["phase"] == "done", (proc.returncode, summary)
+    _landed(0, "", _replayed(cli, log), signal.SIGHUP)
 
 
 @process_fault("Ctrl-Z (SIGTSTP) in flight, after SIGTTIN and SIGTTOU (a backgrounded fly touching its terminal)",

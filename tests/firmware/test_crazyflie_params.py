@@ -79,7 +79,7 @@ def test_silent_module_is_named_once():
     checks = check_crazyflie("udp://127.0.0.1:19729", 0, WANTED, timeout=0.3)
     assert all(c.actual is None and c.unreachable for c in checks)
     assert issues(checks) == ["module 0 (udp://127.0.0.1:19729) does not answer: Error communicating with the "
-                              "Crazyflie"]
+                              "Crazyflie (5 attempts)"]
 
 
 def test_a_right_value_only_in_ram_is_named_and_stored_by_apply():

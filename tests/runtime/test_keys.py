@@ -1,5 +1,6 @@
 import os
 import pty
+import signal
 import time
 
 from groundstation.runtime.flight import Requests
@@ -47,3 +48,34 @@ def test_a_terminal_that_hangs_up_ends_the_reader_not_the_flight():
             reader._thread.join(5.0)
             assert not reader._thread.is_alive()  # ended, not spinning on a readable end of file
         assert not req.land.is_set() and not req.stop.is_set()
+
+
+def test_keys_come_back_after_the_flight_ran_in_the_background():
+    """Ctrl-Z stops a wrapper script around ``fly``; its shell resumes it behind another job: the terminal refuses
+    reads from the background (EIO, SIGTTIN ignored as in flight). After ``fg`` the keys work again."""
+    pid, master = pty.fork()  # the child: a session leader on the pseudo-terminal, its controlling terminal
+    if pid == 0:
+        signal.signal(signal.SIGTTOU, signal.SIG_IGN)
+        reader_pid = os.fork()
+        if reader_pid == 0:
+            os.setpgid(0, 0)  # a process group of its own: the background
+            signal.signal(signal.SIGTTIN, signal.SIG_IGN)
+            req = Requests()
+            with KeyReader(req, os.fdopen(0, closefd=False)) as reader:  # (pytest replaces sys.stdin)
+                os.write(1, b"R")  # ready; keys typed now wait in the terminal
+                time.sleep(0.5)  # reads refused meanwhile
+                refused = reader._thread.is_alive()
+                os.tcsetpgrp(0, os.getpgrp())  # fg
+                landed = req.land.wait(10.0)
+            os._exit(0 if refused and landed else 1)
+        _, status = os.waitpid(reader_pid, 0)
+        os._exit(os.waitstatus_to_exitcode(status))
+    try:
+        seen = b""
+        while b"R" not in seen:
+            seen += os.read(master, 64)
+        os.write(master, b"l")
+        _, status = os.waitpid(pid, 0)
+    finally:
+        os.close(master)
+    assert os.waitstatus_to_exitcode(status) == 0
