@@ -30,6 +30,8 @@ class VirtualMocap:
                  attitude_noise: float = 0.0, latency: float = 0.0, seed: int = 0, clock=time.time,
                  threaded: bool = False, activity: LoopActivity | None = None) -> None:
         self._pub = publisher
+        self._pub_lock = threading.Lock()
+        """Held while a pose is sent, so a publisher replaced by :meth:`restart` is never used after."""
         self._sensor = MocapSensor(rate_hz, position_noise, attitude_noise, latency, np.random.default_rng(seed))
         self._clock = clock
         self.published = 0
@@ -59,7 +61,8 @@ class VirtualMocap:
             stamp = wall - (t_sim - m.t)  # the host's wall clock when the pose was captured
             m = self._held
             if self._thread is None:
-                self._pub.publish(m.position, m.rotation, stamp)
+                with self._pub_lock:
+                    self._pub.publish(m.position, m.rotation, stamp)
             else:
                 self._outbox.append((m.position, m.rotation, stamp))  # no wake-up: the thread sends between periods
             self.published += 1
@@ -68,12 +71,25 @@ class VirtualMocap:
         while not self._closed:
             self._activity.wait_end(0.005)
             while self._outbox and self._activity.may_work(3e-4):  # encode + put: ~0.1 ms
-                self._pub.publish(*self._outbox.popleft())
+                with self._pub_lock:
+                    self._pub.publish(*self._outbox.popleft())
+
+    @property
+    def current_publisher(self) -> PosePublisher:
+        return self._pub
+
+    def restart(self, publisher: PosePublisher) -> PosePublisher:
+        """Publish through ``publisher`` from now on (a restarted bridge: a new entity id, its own sequence); returns
+        the one replaced, no longer used, for the caller to close."""
+        with self._pub_lock:
+            old, self._pub = self._pub, publisher
+        return old
 
     def close(self) -> None:
         """Send what is pending and stop the publishing thread (if any). Idempotent."""
         if self._thread is not None and not self._closed:
             self._closed = True
             self._thread.join(2.0)
-            while self._outbox:
-                self._pub.publish(*self._outbox.popleft())
+            with self._pub_lock:
+                while self._outbox:
+                    self._pub.publish(*self._outbox.popleft())

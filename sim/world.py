@@ -42,14 +42,20 @@ class SimulatedWorld:
         session = open_session(listen=listen, connect=connect, security=security)
         self._stack.callback(session.close)
         publisher = PosePublisher(session, key, mac_key)
-        self._stack.callback(publisher.close)
         vmocap = VirtualMocap(publisher, m.rate_hz, m.position_noise, np.radians(m.attitude_noise_deg), m.latency_s,
                               threaded=True, activity=activity)
+        self._stack.callback(lambda: vmocap.current_publisher.close())
         self._stack.callback(vmocap.close)
+
+        restarts = [0]
 
         def observe(t_sim, state):
             vmocap.paused = faults.mocap_paused
             vmocap.frozen = faults.mocap_frozen
+            if faults.mocap_restarts > restarts[0]:
+                restarts[0] = faults.mocap_restarts
+                replaced = vmocap.restart(PosePublisher(session, key, mac_key))
+                replaced.close()
             vmocap.on_step(t_sim, state)
 
         self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,

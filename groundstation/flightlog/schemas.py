@@ -131,6 +131,9 @@ MOCAP_STATS = _obj("the pose subscriber's counters since the start, about once a
     "bad_stamps": {"type": "integer", "description": "samples whose stamp disagrees with their arrival time"},
     "conflicts": {"type": "integer", "description": "samples out of sequence under the source's id (a copy)"},
     "resyncs": {"type": "integer", "description": "times the estimate followed a new consistent track"},
+    "duplicates": {"type": "integer", "description": "exact copies of the newest sample, dropped"},
+    "handovers": {"type": "integer", "description": "times a new authenticated publisher became the source after "
+                                                    "the old one's silence (a restarted bridge; mocap.key_file set)"},
     "rate_hz": _num("accepted samples a second over the last interval (absent in the first record: no interval "
                     "yet)"),
 }, required=("received", "rejected", "malformed"))

@@ -138,6 +138,10 @@ class SubscriberSettings:
     """This many sequence conflicts (two interleaved sequences under one source id) within a second are a fault:
     a single publisher's samples arrive in order on Zenoh's ordered links, so only a second sender that copied the
     source id produces them."""
+    handover_silence_s: float = 0.1
+    """With a key: a new authenticated publisher becomes the source once the old one has been silent this long
+    (a bridge restarted: a new entity id, its sequence from 1), s. Without a key anyone may publish, and a new
+    publisher is never taken (a second publisher is a fault)."""
 
 
 class PoseSubscriber:
@@ -153,7 +157,8 @@ class PoseSubscriber:
     Integrity. With ``mac_key``, a sample without the key's MAC is counted (:attr:`unauthenticated`) and never
     used; that is what stops a forger (see the README's "Mocap on a lab network"). The first publisher heard is
     the body's source (its Zenoh entity id, in the samples' source info); a sample from any other is counted
-    (:attr:`foreign`) and never used, and :meth:`fault` names it. The id is only a claim (any publisher can copy
+    (:attr:`foreign`) and never used, and :meth:`fault` names it; with a key, a new publisher after the source's
+    silence becomes the source (a restarted bridge: :attr:`handovers`). The id is only a claim (any publisher can copy
     it): without a key, two interleaved sequences under one id are counted (:attr:`conflicts`) and a fault too
     (with a key only the key's holders publish, and a sample behind the newest is a replay: rejected, no fault).
     A stamp must agree with the sample's arrival on this process's clock (:class:`StampClock`; else
@@ -190,6 +195,8 @@ class PoseSubscriber:
         self._taken: list[PoseSample] = []
         """Taken in the current poll, timed when it ends."""
         self._source: str | None = None
+        self._source_heard = -np.inf
+        """When a sample of the source last arrived (clock time), s."""
         self._track: list[PoseSample] = []
         """Rejected samples consistent among themselves (a candidate for resynchronisation)."""
         self.rejected = 0
@@ -208,6 +215,9 @@ class PoseSubscriber:
         self.conflicts = 0
         """Samples taken right after one of another sequence under the same source id was rejected."""
         self.resyncs = 0
+        self.handovers = 0
+        """Times a new authenticated publisher became the source after the old one's silence (with a key)."""
+        self.last_handover = ""
         self.duplicates = 0
         """Exact copies of the newest accepted sample (sequence, stamp and pose): delivered twice by a network or
         a bridge, they say nothing new and nothing wrong, and are dropped."""
@@ -276,12 +286,15 @@ class PoseSubscriber:
             return
         info = sample.source_info
         source = str(info.source_id) if info is not None else "unidentified"
+        if self._source is not None and source != self._source and self._may_hand_over(now):
+            self._hand_over(now)
         if self._source is None:
             self._source = source
         elif source != self._source:
             self.foreign += 1
             self.foreign_sources.add(source)
             return
+        self._source_heard = now
         self.received += 1
         self._raw.append((now, payload, pose.stamp))
         last = self._last
@@ -320,6 +333,26 @@ class PoseSubscriber:
             if not self._conflict_times:  # the stream's own rate, learnt while a single sender is seen
                 self._cadence += 0.05 * ((pose.stamp - last.stamp) / (pose.sequence - last.sequence) - self._cadence)
         self._take(pose, now)
+
+    def _may_hand_over(self, now: float) -> bool:
+        """A sample of another publisher, arriving ``now``, may start a new source: it carries the key's MAC (it
+        decoded), no second publisher was ever seen beside the source, and the source has been silent for
+        ``handover_silence_s``."""
+        return (self._mac_key is not None and not self.foreign
+                and now - self._source_heard >= self.settings.handover_silence_s)
+
+    def _hand_over(self, now: float) -> None:
+        """Forget the old source: the new one is taken as the first was (its sequence, stamps and clock offset its
+        own); the estimator still judges its poses against the body's motion."""
+        self.handovers += 1
+        self.last_handover = (f"a new publisher on {self.key} after {(now - self._source_heard) * 1e3:.0f} ms of "
+                              f"silence (a restarted bridge)")
+        self._source = None
+        self._last = None
+        self._track.clear()
+        self._conflict_times.clear()
+        self._behind_since_accept = False
+        self._stamps = StampClock(self.settings.stamps)
 
     def _take(self, pose: PoseSample, now: float) -> None:
         self._last = pose

@@ -335,6 +335,8 @@ class Flight:
         self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
         self._stats: LoopStats | None = None
         self._failed_modules: set[int] = set()
+        self._mocap_fault_named = ""
+        """The mocap fault last seen, without its counts."""
         """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
@@ -466,6 +468,12 @@ class Flight:
                 return False
             if self.phase.airborne:  # the estimator's fault: every pose rejected, so landing on the estimate
                 self._begin_landing(t, state, why, blind=bool(est.fault()))
+            elif self.phase == Phase.LANDING and fault.split(" (")[0] != self._mocap_fault_named:
+                # A landing already under way (on stale poses, say) goes on; the log says why poses that come back
+                # are not used (a second publisher after a restarted bridge without a key), once per kind of fault
+                # (its counts in brackets change every period).
+                self._event(t, "warning", f"{why}: the landing goes on")
+            self._mocap_fault_named = fault.split(" (")[0]
         if self.gyros.fault and self.phase.airborne and state is not None:
             self._begin_landing(t, state, f"gyro fault: {self.gyros.fault}")
         if state is None or age > self.policy.mocap_timeout_s:

@@ -97,13 +97,16 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_paused``, ``link_lost``, ``gyro_failed`` and ``tied_down`` act on the in-process simulator only; with
+    ``mocap_*``, ``link_lost``, ``gyro_failed`` and ``tied_down`` act on the in-process simulator only; with
     simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
     mocap_frozen: bool = False
     """The virtual mocap publishes its last pose again and again, freshly stamped."""
+    mocap_restarts: int = 0
+    """Each increase restarts the virtual mocap's publisher: a new one (a new entity id, its sequence from 1), as a
+    restarted bridge (pause it meanwhile with ``mocap_paused``: a restart takes a while)."""
     corrupt_pose: bool = False
     """The pose source hands the estimator NaN positions."""
     link_lost: bool = False
@@ -156,6 +159,8 @@ class _LoggedPose:
         self._to_log = to_log
         self._stats_at = (-np.inf, 0)
         """(monotonic time, accepted count) of the last /mocap/stats record."""
+        self._handovers = 0
+        """Source changes already logged as events."""
 
     def now(self) -> float:
         return self._sub.now()
@@ -168,6 +173,9 @@ class _LoggedPose:
             self._log.raw_protobuf(self._topic, PoseInFrame, payload, self._to_log(t_mono),
                                    publish_time=stamp if bad is None else bad)
         now = time.monotonic()
+        if self._sub.handovers > self._handovers:
+            self._handovers = self._sub.handovers
+            self._log.event("warning", f"mocap source changed: {self._sub.last_handover}", self._to_log(now))
         last, accepted = self._stats_at
         if now - last >= MOCAP_STATS_S:
             sub = self._sub
@@ -176,7 +184,9 @@ class _LoggedPose:
                                               "rejected": sub.rejected, "malformed": sub.malformed,
                                               "missed": sub.missed, "foreign": sub.foreign,
                                               "unauthenticated": sub.unauthenticated, "bad_stamps": sub.bad_stamps,
-                                              "conflicts": sub.conflicts, "resyncs": sub.resyncs, "rate_hz": rate},
+                                              "conflicts": sub.conflicts, "resyncs": sub.resyncs,
+                                              "duplicates": sub.duplicates, "handovers": sub.handovers,
+                                              "rate_hz": rate},
                              self._to_log(now))
             self._stats_at = (now, sub.accepted)
         out = self._sub.measurements()

@@ -145,10 +145,12 @@ def test_poses_that_stop_turning_while_the_gyros_turn_are_a_fault():
     assert "deg off the gyros' prediction" in why
 
 
-@pytest.mark.parametrize("shove_m, over_s", [(0.1, 0.05), (0.15, 0.05)])
+@pytest.mark.parametrize("shove_m, over_s", [(0.1, 0.05), (0.15, 0.05), (0.3, 0.1)])
 def test_a_shove_the_model_did_not_see_is_followed(shove_m, over_s):
-    """The body shoved sideways by ``shove_m`` in ``over_s`` (2-3 m/s: a knock): its poses are ones it could have
-    reached, the gate opens to them before the fault, and the estimate follows within a few mm."""
+    """The body shoved sideways by ``shove_m`` in ``over_s`` (2-3 m/s: a knock), stopping dead: its poses are ones
+    it could have reached, the gate opens to them before the fault, and the estimate follows within a few mm (the
+    disturbance inflated as much as the velocity took up the 3 m/s shove: a fault, then a blind estimate that ran
+    24 m in 2 s)."""
     def shoved(t):
         return np.array([shove_m * min(max(t - 3.0, 0.0) / over_s, 1.0), 0.0, 2.5]), np.eye(3)
 
@@ -157,6 +159,18 @@ def test_a_shove_the_model_did_not_see_is_followed(shove_m, over_s):
     out = _run(f, 2.0, shoved, t0=3.0)
     assert not f.fault()
     assert max(abs(st.position[0] - shoved(t)[0][0]) for t, st in out[50:]) < 0.005
+
+
+@pytest.mark.parametrize("weights", [1.2, 2.0])
+def test_an_assembly_tied_down_is_where_its_poses_say(weights):
+    """Thrust of 1.2 and 2 times the weight on an assembly tied to the ground: the disturbance learns the tether
+    (not inflated like the velocity, it learnt too slowly: 5-7 cm off for seconds)."""
+    ground = lambda t: (np.array([0.0, 0.0, 0.05]), np.eye(3))  # noqa: E731
+    f = RigidBodyFilter(EstimatorSettings(), MASS)
+    _run(f, 2.0, ground, force=np.zeros(3))
+    out = _run(f, 2.0, ground, force=HOVER * weights, t0=2.0)
+    assert not f.fault()
+    assert max(abs(st.position[2] - 0.05) for _, st in out[-100:]) < 0.005
 
 
 def test_a_body_a_metre_off_is_never_fused_and_the_blind_estimate_stays_certain():
@@ -180,6 +194,33 @@ def test_a_body_a_metre_off_is_never_fused_and_the_blind_estimate_stays_certain(
     assert f.last_fused_t < 2.0
     assert max(np.linalg.norm(st.position - [0.0, 0.0, 1.0]) for _, st in states) < 0.01
     assert f.estimate().position_sigma < 0.1  # 1 s blind
+
+
+def test_after_the_fault_the_uncertainty_is_that_of_an_estimate_that_never_saw_the_rejected_poses():
+    """From 2 s the poses are 12 cm off (soon a place it could have reached: each rejection then inflates the
+    covariance); once the fault latches the inflation goes, and what is left is exactly the covariance of a twin
+    that had no pose since 2 s, process noise included (undone by division, it was 5-23 % low)."""
+    truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
+    rng = np.random.default_rng(4)
+    off = lambda t: (np.array([0.12, 0.0, 1.0]) + rng.normal(0.0, MOCAP_NOISE[0], 3), np.eye(3))  # noqa: E731
+    judged, twin = RigidBodyFilter(EstimatorSettings(), MASS), RigidBodyFilter(EstimatorSettings(), MASS)
+    for f in (judged, twin):
+        _run(f, 2.0, truth)
+    inflated = []
+    for k in range(125):  # 0.5 s
+        t = 2.0 + (k + 1) * DT
+        for f in (judged, twin):
+            f.predict(t, np.zeros(3))
+        if k % 2 == 0:
+            judged.correct(PoseMeasurement(t, *off(t)))
+        if not judged.fault():
+            inflated.append(judged.estimate().position_sigma / twin.estimate().position_sigma)
+        for f in (judged, twin):
+            f.command(HOVER)
+    assert "cm off the estimate" in judged.fault() and judged.last_fused_t <= 2.0 + 1e-9
+    assert max(inflated) > 2.0  # inflated, then the fault
+    assert judged.estimate().position_sigma == pytest.approx(twin.estimate().position_sigma, rel=1e-12)
+    assert judged.state().position == pytest.approx(twin.state().position, abs=1e-12)
 
 
 def test_without_poses_the_uncertainty_grows_and_shrinks_again_when_they_return():

@@ -15,9 +15,11 @@ import numpy as np
 import pytest
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
+from groundstation.mocap.auth import write_key_file
 from groundstation.runtime.fly import Faults, fly
 from tests.faults.table import Fault, estimate_fault, rows
 from tests.faults.test_fault_table import _records
+from tests.faults.test_process_faults import _replayed
 from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import TRACK_START_S, config_with, read_log, sitl_config
 
@@ -114,6 +116,55 @@ def f_mocap_blackout_1s(cli, tmp_path):
     _, _, _, motors = read_log(log)
     after = [m["estimate"]["position_sigma_m"] for _, m in motors if "estimate" in m and m["t_s"] > TRACK_START_S + 3.8]
     assert after and max(after) < 0.01  # the poses are back: the uncertainty is mocap's again
+
+
+def _bridge_restarted(tmp_path, port: int, keyed: bool):
+    """A dry run whose mocap publisher stops in tracking and a new one (a new entity id, its sequence from 1) takes
+    its place 0.5 s later, as a restarted bridge; (result, log, the last /mocap/stats)."""
+    faults = Faults()
+    mocap = "latency_s = 0.005" + (f'\nkey_file = "{write_key_file(tmp_path / "mocap.key")}"' if keyed else "")
+    cfg = config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}", **LANDING, **{"latency_s = 0.005": mocap})
+    start = TRACK_START_S + 2.5
+
+    def on_period(t):
+        faults.mocap_paused = start <= t < start + 0.5
+        faults.mocap_restarts = int(t >= start + 0.5)
+
+    log = tmp_path / "restarted.mcap"
+    res = fly(cfg, duration=4.0, log_path=log, faults=faults, on_period=on_period)
+    return res, log, json.loads(_records(log, "/mocap/stats")[-1][1])
+
+
+@estimate_fault("authenticated mocap: the bridge restarted in tracking (its publisher gone, a new one with a new "
+                "source id and its sequence from 1 after 0.5 s; dry run)",
+                "a blind landing while the poses are stale; the new publisher, holding the key, becomes the source "
+                "(an event names it) and the landing goes on on its poses; touches down upright, exit 1")
+def f_mocap_bridge_restarted_keyed(cli, tmp_path):
+    res, log, stats = _bridge_restarted(tmp_path, 7538, keyed=True)
+    assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
+    assert stats["handovers"] == 1 and stats["foreign"] == 0, stats
+    texts = [e["text"] for e in _replayed(cli, log)["events"]]
+    assert any(t.startswith("mocap source changed: a new publisher on mocap/assembly/pose after ") for t in texts), \
+        texts
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+    _, _, _, motors = read_log(log)
+    after = [m["estimate"]["position_sigma_m"] for _, m in motors
+             if "estimate" in m and m["t_s"] > TRACK_START_S + 3.3 and m["phase"] == "landing"]
+    assert after and max(after) < 0.01  # the new publisher's poses are fused: the uncertainty is mocap's again
+
+
+@estimate_fault("mocap without a key: the bridge restarted in tracking (a new source id after 0.5 s; dry run)",
+                "anyone could be the new publisher: never taken, a mocap fault (a second publisher) named in the "
+                "blind landing the stale poses began; it touches down upright, exit 1")
+def f_mocap_bridge_restarted_unkeyed(cli, tmp_path):
+    res, log, stats = _bridge_restarted(tmp_path, 7539, keyed=False)
+    assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
+    assert stats["handovers"] == 0 and stats["foreign"] > 0, stats
+    named = [text for _, _, text in res.events if text.startswith("mocap fault: a second publisher")]
+    assert len(named) == 1 and named[0].endswith("the landing goes on"), res.events  # named once
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
 
 
 @estimate_fault("mocap: a frozen but freshly stamped pose while the assembly flies its figure-8 (dry run)",

@@ -10,7 +10,7 @@ import zenoh
 
 from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.codec import PoseSample, encode
-from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, open_session
+from groundstation.mocap.zenoh_link import PosePublisher, PoseSubscriber, SubscriberSettings, open_session
 
 KEY = "mocap/body/pose"
 
@@ -176,3 +176,35 @@ def test_authenticated_stream(sessions):
     _genuine(pub, sub, 20, 5)
     assert sub.accepted == 25
     np.testing.assert_allclose(sub.latest().position, [0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("keyed", [True, False])
+def test_a_restarted_bridge_is_taken_with_the_key_and_a_fault_without(sessions, keyed):
+    """The bridge restarts: a new publisher (a new entity id, its sequence from 1) after the old one's silence.
+    With the key it becomes the source (only the key's holders publish); a third keyed publisher while it is heard
+    is a second publisher. Without the key anyone could be the new one: a fault, never taken."""
+    a, b, c = sessions
+    key = MocapKey(bytes(range(32))) if keyed else None
+    # A silence longer than the default's 0.1 s: the third publisher below must not arrive in one on a loaded machine.
+    sub = PoseSubscriber(b, KEY, SubscriberSettings(handover_silence_s=0.5), mac_key=key)
+    first = PosePublisher(a, KEY, mac_key=key)
+    _genuine(first, sub, 0, 10)
+    first.close()
+    time.sleep(2 * sub.settings.handover_silence_s)
+    restarted = PosePublisher(a, KEY, mac_key=key)
+    time.sleep(0.3)  # its declaration reaches the ground station
+    _genuine(restarted, sub, 10, 10, x0=0.01)
+    if not keyed:
+        assert sub.accepted == 10 and sub.foreign == 10 and sub.handovers == 0
+        assert sub.fault().startswith(f"a second publisher on {KEY}")
+        return
+    assert sub.accepted == 20 and sub.foreign == 0 and sub.handovers == 1 and not sub.fault(), sub.last_rejection
+    assert "a new publisher on mocap/body/pose after" in sub.last_handover
+    np.testing.assert_allclose(sub.latest().position, [0.01, 0.0, 1.0])
+    assert sub.latest().sequence == 10  # the new publisher's own count
+    third = PosePublisher(c, KEY, mac_key=key)
+    time.sleep(0.3)
+    _genuine(restarted, sub, 20, 3, x0=0.01)  # heard again, then the third while it is
+    third.publish(np.array([0.5, 0.0, 1.0]), np.eye(3), time.time())
+    _genuine(restarted, sub, 23, 3, x0=0.01)
+    assert sub.foreign >= 1 and sub.handovers == 1 and sub.fault().startswith(f"a second publisher on {KEY}")
