@@ -28,7 +28,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Literal, Protocol
 
 import numpy as np
@@ -37,7 +37,7 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import Backend, SimulatedBackend, Telemetry
 from groundstation.control.allocation import allocate, allocate_bounded
-from groundstation.control.geometric import Gains, control
+from groundstation.control.geometric import Gains, control, reference_turn_rate
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
@@ -274,6 +274,8 @@ class Recording:
 
 LANDING_DEPTH = 0.02
 """A landing aims this far below the ground, m: the touchdown's last thrust presses the assembly down."""
+TURN_RATE_STEP_S = 0.004
+"""The attitude target's rate fed forward is taken over this step of the reference, s."""
 BLIND_LANDING_DEPTH = 0.15
 """A blind landing (on the estimate alone) aims this far below the ground, m: the estimate may be several cm off
 after seconds without mocap (measured in the dry run: 5-8 cm high after 2 s), and aiming low lands it anyway."""
@@ -510,22 +512,25 @@ class Flight:
                 self._begin_landing(t, state, why)
         if self._landing is not None:
             t_land, landing, _ = self._landing
-            sp = landing(t - t_land)
-            sp = Setpoint(sp.position, sp.velocity, sp.acceleration, _level(self.plan(t).rotation))
             if t - t_land >= landing.duration:
                 self._finish(t)
                 return False
+            reference = self._landing_reference
+            sp = reference(t)
         else:
             phase = self.plan.phase_at(t)
             if phase == Phase.DONE:
                 self._finish(t)
                 return False
             self._set_phase(t, phase)
-            sp = self.plan(t)
+            reference = self.plan
+            sp = reference(t)
             error = float(np.linalg.norm(state.position - sp.position))
             if error > self.policy.max_tracking_error_m:
                 self._begin_landing(t, state, f"not following the reference: {error:.2f} m from it > "
                                                        f"{self.policy.max_tracking_error_m:g} m")
+        sp = replace(sp, omega=reference_turn_rate(sp, reference(t + TURN_RATE_STEP_S), TURN_RATE_STEP_S,
+                                                   self.model))
         out = control(state, sp, self.model, self.gains)
         u = self.alloc(out.wrench, self.model)
         if not np.all(np.isfinite(u)):
@@ -536,6 +541,12 @@ class Flight:
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
         return True
+
+    def _landing_reference(self, t: float) -> Setpoint:
+        """The landing's reference at ``t``: level, the plan's yaw."""
+        t_land, landing, _ = self._landing
+        sp = landing(t - t_land)
+        return Setpoint(sp.position, sp.velocity, sp.acceleration, _level(self.plan(t).rotation))
 
     def _on_module_fault(self, t: float, state: RigidState | None, telemetry) -> bool:
         """React to modules whose firmware stopped flying them (or that went silent): land on the others if their

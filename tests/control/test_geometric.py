@@ -73,3 +73,29 @@ def test_attitude_error_sign_restores():
     sp = Setpoint(np.array([0, 0, 1.0]), np.zeros(3), np.zeros(3), np.eye(3))
     out = control(tilted, sp, model, Gains())
     assert out.wrench[3] < 0 and out.attitude_error[0] > 0  # positive roll error -> negative roll torque
+
+
+def test_the_turn_rate_fed_forward_is_the_freed_pitch_rate_of_the_figure8():
+    """The V (no force along body x) holding roll and yaw at 0 must pitch to theta = atan(a_x / (g + a_z)) to
+    produce the reference's force: the rate fed forward is d theta / dt about body y, recomputed here from the
+    figure-8's accelerations alone (central differences), not from the attitude adaptation."""
+    from groundstation.assembly.module import GRAVITY
+    from groundstation.control.geometric import reference_turn_rate
+    from groundstation.control.trajectory import Figure8
+
+    model = ControlModel.from_assembly(V)
+    fig8 = Figure8(l0=0.6, tc=8.0, h0=1.0, duration=8.0)
+    h = 1e-4
+
+    def pitch(t):
+        a = fig8(t).acceleration
+        return np.arctan2(a[0], GRAVITY + a[2])
+
+    rates = []
+    for t in np.linspace(0.0, 8.0, 17):
+        w = reference_turn_rate(fig8(t), fig8(t + 0.004), 0.004, model)
+        expected = (pitch(t + 0.002 + h) - pitch(t + 0.002 - h)) / (2 * h)  # the step's midpoint
+        assert w[1] == pytest.approx(expected, rel=1e-3, abs=1e-5)
+        assert abs(w[0]) < 1e-9 and abs(w[2]) < 1e-9
+        rates.append(abs(w[1]))
+    assert max(rates) > 0.1  # it swings: rad/s
