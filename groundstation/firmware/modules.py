@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor, as_completed
+import queue
+import threading
 from pathlib import Path
 
 from groundstation.backend_kinds import backend_kind, load
@@ -35,17 +36,30 @@ def check_modules(backend: BackendSection, wanted: dict[str, float], apply: bool
     once: a module that does not answer costs its wait once, not once per module (two modules answering
     everything but their parameters kept `params` 51 s). ``on_module(done)`` is called as each module's check
     ends (progress). ``cache_dir`` keeps what a kind may reuse between runs (Crazyflie parameter tables of
-    contents). The checks come back in module order."""
+    contents). The checks come back in module order; a check that raised raises here."""
     check = load(backend_kind(backend.kind).check_params)
-    pool = ThreadPoolExecutor(max_workers=max(1, min(PARALLEL, len(backend.modules))),
-                              thread_name_prefix="module-params")
-    try:
-        futures = [pool.submit(check, link, i, wanted, apply, cache_dir) for i, link in enumerate(backend.modules)]
-        for done, _ in enumerate(as_completed(futures), 1):
-            if on_module is not None:
-                on_module(done)
-        return [c for f in futures for c in f.result()]
-    finally:
-        # Interrupted (Ctrl-C): the checks still queued never start; the running ones end on their own bounded
-        # waits, not joined here.
-        pool.shutdown(wait=False, cancel_futures=True)
+    links = backend.modules
+    results: list = [None] * len(links)
+    ended: queue.SimpleQueue[int] = queue.SimpleQueue()
+    slots = threading.Semaphore(PARALLEL)
+
+    def run(i: int, link: str) -> None:
+        with slots:
+            try:
+                results[i] = check(link, i, wanted, apply, cache_dir)
+            except BaseException as exc:  # handed to the caller's thread
+                results[i] = exc
+        ended.put(i)
+
+    # Daemon threads: an interrupted check (Ctrl-C) returns at once; the checks under way end on their own bounded
+    # waits, and the process does not wait for them on its way out (a pool's threads are joined at exit: 5 s).
+    for i, link in enumerate(links):
+        threading.Thread(target=run, args=(i, link), name=f"module-params-{i}", daemon=True).start()
+    for done in range(1, len(links) + 1):
+        ended.get()
+        if on_module is not None:
+            on_module(done)
+    for r in results:
+        if isinstance(r, BaseException):
+            raise r
+    return [c for r in results for c in r]
