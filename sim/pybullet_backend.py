@@ -103,6 +103,8 @@ class PyBulletBackend(BackendBase):
         """Set False to inject a link loss (the flight must stop the motors)."""
         self.failed_gyro: int | None = None
         """Set to a module's index to inject a failed IMU: its gyro reads full scale about the module's x axis."""
+        self.push: tuple[float, float, float] | None = None
+        """A force on the body's centre, world frame, N (fault injection: a shove, a gust)."""
         self._tie: int | None = None
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -209,6 +211,9 @@ class PyBulletBackend(BackendBase):
             pb.applyExternalForce(self._body, -1, (r @ w[:3]).tolist(), self._state.position.tolist(), pb.WORLD_FRAME,
                                   physicsClientId=c)
             pb.applyExternalTorque(self._body, -1, (r @ w[3:]).tolist(), pb.WORLD_FRAME, physicsClientId=c)
+            if self.push is not None:
+                pb.applyExternalForce(self._body, -1, list(self.push), self._state.position.tolist(), pb.WORLD_FRAME,
+                                      physicsClientId=c)
             pb.stepSimulation(physicsClientId=c)
             self._t += self._dt
             self._record()

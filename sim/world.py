@@ -48,15 +48,17 @@ class SimulatedWorld:
         self._stack.callback(vmocap.close)
 
         restarts = [0]
+        resting: list[RigidState] = []
 
         def observe(t_sim, state):
+            resting[:] = resting or [state]  # where it stood at the start: the decoy's pose
             vmocap.paused = faults.mocap_paused
             vmocap.frozen = faults.mocap_frozen
             if faults.mocap_restarts > restarts[0]:
                 restarts[0] = faults.mocap_restarts
                 replaced = vmocap.restart(PosePublisher(session, key, mac_key))
                 replaced.close()
-            vmocap.on_step(t_sim, state)
+            vmocap.on_step(t_sim, resting[0] if faults.mocap_decoy else state)
 
         self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
                                                            motor_time_constant=cfg.backend.motor_time_constant,
@@ -92,6 +94,7 @@ class SimulatedWorld:
         def advance(t: float) -> None:
             self.backend.link_ok = not self.faults.link_lost
             self.backend.failed_gyro = self.faults.gyro_failed
+            self.backend.push = self.faults.push_n
             if self.faults.tied_down:
                 self.backend.tie_down()
             if on_period is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 from dataclasses import asdict
@@ -52,7 +53,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     asked, 1 failsafe, emergency stop, not started or the log failed, 2 bad input (an existing --log included),
     3 landed but degraded beyond the flight's bounds."""
     from groundstation.flightlog.mcap_log import SUBPROTOCOLS
-    from groundstation.runtime.flight import Requests, operator_landing
+    from groundstation.runtime.flight import Requests
     from groundstation.runtime.fly import fly
 
     log_path = writable_output(log, (".mcap",)) if log else None
@@ -99,6 +100,21 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         if live is not None:
             renderer.join(2.0)
             live.stop()
+    try:
+        return _report(flight, result, as_json)
+    except OSError as exc:
+        # Output that cannot be written (stdout on a full disk, a pipe or terminal gone) must not turn a flight
+        # into a traceback: its summary is in the log.
+        with contextlib.suppress(OSError):
+            click.echo(f"groundstation: cannot print the flight's summary ({exc.strerror or exc}); it is in the "
+                       f"log {result.log_path}", err=True)
+        return EXIT_EMERGENCY if not result.nominal else EXIT_DEGRADED if result.degraded else 0
+
+
+def _report(flight: str, result, as_json: bool) -> int:
+    """Print the flight's summary (stdout) and what went wrong (stderr); the exit status."""
+    from groundstation.runtime.flight import operator_landing
+
     summary = {"phase": result.phase, "reason": result.reason, "degraded": list(result.degraded),
                "log": str(result.log_path), **asdict(result.metrics)}
     if as_json:

@@ -804,6 +804,7 @@ def recover(src: str | Path, dst: str | Path) -> dict:
     """Copy every intact record of a possibly truncated or damaged MCAP (e.g. after SIGKILL, or a flipped bit on
     the disk) into a finalized file at ``dst``, streamed (memory does not grow with the log).
 
+    ``dst`` must not exist.
     Returns counts: messages and channels written, intact chunks read, whether the source was complete (finalized,
     nothing damaged), what was dropped (chunks and messages, in all and by reason; messages None where unknown)
     and the warnings naming each damaged stretch.
@@ -814,7 +815,11 @@ def recover(src: str | Path, dst: str | Path) -> dict:
     schemas: dict[int, int] = {}
     channels: dict[int, int] = {}
     kept = 0
-    with open(dst, "wb") as out:
+    try:
+        out = open(dst, "xb")  # noqa: SIM115 (closed below)  created exclusively: a log is never overwritten
+    except FileExistsError:
+        raise UsageError(f"{dst}: the file exists; a log is never overwritten (choose another file)") from None
+    with out:
         w = _mcap_writer(out)
         w.start(profile="", library=f"{LIBRARY} recover")
         for rec in scan.records():  # an intact summary's schemas and channels come first, then the file's order

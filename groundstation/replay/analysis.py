@@ -393,69 +393,75 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     flew = False
     track_first = track_last = None
     max_start_error = 0.0
+    malformed: dict[str, int] = {}
     rr: Rerun | None = None
     lo = -math.inf if t_from is None else t_from
     hi = math.inf if t_to is None else t_to
     windowed = lo > -math.inf or hi < math.inf
     for rec in log.records(progress=progress):
-        d = rec.data
-        if rec.topic == "/control":
-            t = d["t_s"]
-            offset = rec.log_time - t if offset is None else offset
-            t_end, last_phase = t, d["phase"]
-            inside = lo <= t <= hi
-            if inside and (not timeline or timeline[-1][1] != d["phase"]):
-                timeline.append((t, d["phase"]))
-            if "state" not in d:
-                continue  # a motors-off record (the flight's last)
-            flew = True
-            loop = d.get("loop") or {}
-            if loop:
-                late.add(loop["overruns"], inside)
-            if "estimate" in d:
-                estimates.add(d["estimate"], inside)
-            if "mocap" in d:
-                mocap_counts.add(d["mocap"], inside)
-            if not inside:
-                continue
-            if metrics is None:
-                metrics = FlightMetrics(len(d["modules"]))
-                if rerun:
-                    rr = Rerun(_assembly(log.metadata, src), log_config(log.metadata, src),
-                               gains, allocation, src)
-            if d["phase"] == Phase.TRACK:
-                track_first = t if track_first is None else track_first
-                track_last = t
-            flown = d.get("truth", d["state"])
-            rotation = quat_to_matrix(np.array(flown["orientation"]))
-            target = quat_to_matrix(np.array(d["attitude_target"]["orientation"]))
-            motors = commands(d)
-            metrics.add(t, d["phase"], flown["position_m"], d["setpoint"]["position_m"], rotation, target,
-                        math.radians(d["roll_target_deg"]), math.radians(d["yaw_target_deg"]), motors,
-                        d.get("mocap_age_s"))
-            if loop:
-                metrics.add_timing(loop["start_error_s"], loop["compute_s"])
-                max_start_error = max(max_start_error, abs(loop["start_error_s"]))
-            series.add((t, flown["position_m"], d["setpoint"]["position_m"], rotation,
-                        d["attitude_target"]["rpy_deg"], motors, d["phase"]))
-            if rr is not None:
-                rr.add(d)
-        elif rec.topic == "/log":
-            events_raw.append((rec.log_time, *d))
-        elif is_mocap_pose(rec.topic):
-            poses.append(rec.log_time)
-        elif rec.topic == "/backend/telemetry":
-            if lo <= d["t_s"] <= hi:
-                modules.add(d)
-        elif rec.topic == "/mocap/stats":
-            mocap = d
-        elif rec.topic == "/flight/start":  # before the first period: where a window from it starts counting
-            mocap_counts.add(d["mocap"], inside=False)
-            estimates.counts.add(d["estimate"], inside=False)
-        elif rec.topic == "/loop/timing":
-            loop_summary = d
-        elif rec.topic == "/flight/summary":
-            summary = d
+        try:
+            d = rec.data
+            if rec.topic == "/control":
+                t = d["t_s"]
+                offset = rec.log_time - t if offset is None else offset
+                t_end, last_phase = t, d["phase"]
+                inside = lo <= t <= hi
+                if inside and (not timeline or timeline[-1][1] != d["phase"]):
+                    timeline.append((t, d["phase"]))
+                if "state" not in d:
+                    continue  # a motors-off record (the flight's last)
+                flew = True
+                loop = d.get("loop") or {}
+                if loop:
+                    late.add(loop["overruns"], inside)
+                if "estimate" in d:
+                    estimates.add(d["estimate"], inside)
+                if "mocap" in d:
+                    mocap_counts.add(d["mocap"], inside)
+                if not inside:
+                    continue
+                if metrics is None:
+                    metrics = FlightMetrics(len(d["modules"]))
+                    if rerun:
+                        rr = Rerun(_assembly(log.metadata, src), log_config(log.metadata, src),
+                                   gains, allocation, src)
+                if d["phase"] == Phase.TRACK:
+                    track_first = t if track_first is None else track_first
+                    track_last = t
+                flown = d.get("truth", d["state"])
+                rotation = quat_to_matrix(np.array(flown["orientation"]))
+                target = quat_to_matrix(np.array(d["attitude_target"]["orientation"]))
+                motors = commands(d)
+                metrics.add(t, d["phase"], flown["position_m"], d["setpoint"]["position_m"], rotation, target,
+                            math.radians(d["roll_target_deg"]), math.radians(d["yaw_target_deg"]), motors,
+                            d.get("mocap_age_s"))
+                if loop:
+                    metrics.add_timing(loop["start_error_s"], loop["compute_s"])
+                    max_start_error = max(max_start_error, abs(loop["start_error_s"]))
+                series.add((t, flown["position_m"], d["setpoint"]["position_m"], rotation,
+                            d["attitude_target"]["rpy_deg"], motors, d["phase"]))
+                if rr is not None:
+                    rr.add(d)
+            elif rec.topic == "/log":
+                events_raw.append((rec.log_time, *d))
+            elif is_mocap_pose(rec.topic):
+                poses.append(rec.log_time)
+            elif rec.topic == "/backend/telemetry":
+                if lo <= d["t_s"] <= hi:
+                    modules.add(d)
+            elif rec.topic == "/mocap/stats":
+                mocap = d
+            elif rec.topic == "/flight/start":  # before the first period: where a window from it starts counting
+                mocap_counts.add(d["mocap"], inside=False)
+                estimates.counts.add(d["estimate"], inside=False)
+            elif rec.topic == "/loop/timing":
+                loop_summary = d
+            elif rec.topic == "/flight/summary":
+                summary = d
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError):
+            # Intact bytes (the CRC holds) and JSON, but not the record this topic holds (a log edited or
+            # written by another program): skipped and counted, like a record that is not JSON.
+            malformed[rec.topic] = malformed.get(rec.topic, 0) + 1
     if metrics is None and flew:
         raise ConfigError("the log has no control period to analyse in the window", path=src)
     if metrics is None and not (summary or events_raw):
@@ -490,5 +496,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     meta = {"config": log_config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
             "config_path": log.metadata.get("config_path", ""), "assembly": _assembly(log.metadata, src),
             "started_s": offset}
-    return Replay(Path(path), log.complete, log.warnings, meta, m, events, timeline, s,
+    warnings = log.warnings + tuple(f"{n} message(s) on {topic} are not what the topic holds: skipped"
+                                    for topic, n in malformed.items())
+    return Replay(Path(path), log.complete and not malformed, warnings, meta, m, events, timeline, s,
                   rr.stats.result() if rr else None)

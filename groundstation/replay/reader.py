@@ -76,7 +76,8 @@ class LogFile:
                     yield LogRecord(ch.topic, rec.log_time * 1e-9, rec.publish_time * 1e-9, data)
         self.complete = scan.complete and not undecodable
         self.warnings = tuple(scan.warnings()) + tuple(f"{n} message(s) on {topic} are not what the topic holds "
-                                                       f"(not JSON): skipped" for topic, n in undecodable.items())
+                                                       f"(not a JSON object): skipped"
+                                                       for topic, n in undecodable.items())
 
 
 _UNITS = {"position": "position_m", "velocity": "velocity_mps", "acceleration": "acceleration_mps2",
@@ -126,7 +127,10 @@ def commands(d: dict) -> np.ndarray:
 
 def _decode(ch: Channel, data: bytes) -> object:
     if ch.message_encoding == "json":
-        return upgraded(ch.topic, json.loads(data))
+        d = json.loads(data)
+        if not isinstance(d, dict):  # every JSON record of ours is an object
+            raise ValueError("not a JSON object")
+        return upgraded(ch.topic, d)
     if ch.topic == "/log":
         msg = Log()
         msg.ParseFromString(data)

@@ -157,6 +157,13 @@ class FailsafePolicy:
     following its commands (held down, too heavy for its modules, an assembly file that is not the one flying).
     Without it such a flight runs its whole plan with the rotors at their bound. Flights that track have errors of
     a few cm (README, Fig. 9), m."""
+    max_disturbance_mps2: float = 0.3 * GRAVITY
+    """The acceleration the estimator finds the model missing (its disturbance) may not stay above this for
+    ``DISTURBANCE_HOLD_S``, m/s^2: the assembly does not move as its thrust says. Tied down, or ``mocap.body``
+    names another body (a decoy at rest: the real assembly climbed to 12 m while the flight "landed" the decoy;
+    with this bound the motors stop at 0.57 m on the tests' 1 s take-off, 0.86 m at 0.5 g). Within
+    ``NEAR_GROUND_M`` of the ground (by the estimate) the motors stop; higher up (a snag) it lands. A thrust map
+    20 % off is 0.2 g; a 2 g shove of 0.1 s left 0.17 g."""
 
 
 OPERATOR_LAND = "operator land"
@@ -274,6 +281,10 @@ class Recording:
 
 LANDING_DEPTH = 0.02
 """A landing aims this far below the ground, m: the touchdown's last thrust presses the assembly down."""
+DISTURBANCE_HOLD_S = 0.1
+"""How long the disturbance must stay beyond ``max_disturbance_mps2`` (a shove's lasts a tenth of a second), s."""
+NEAR_GROUND_M = 0.3
+"""An estimate this close above the ground has nothing to land from, m."""
 TURN_RATE_STEP_S = 0.004
 """The attitude target's rate fed forward is taken over this step of the reference, s."""
 BLIND_LANDING_DEPTH = 0.15
@@ -337,8 +348,10 @@ class Flight:
         self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
         self._stats: LoopStats | None = None
         self._failed_modules: set[int] = set()
+        self._disturbed_since: float | None = None
+        """Flight time since which the disturbance has been beyond ``max_disturbance_mps2``, s."""
         self._mocap_fault_named = ""
-        """The mocap fault last seen, without its counts."""
+        """The kind of mocap fault last seen (its text without the counts)."""
         """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
@@ -396,9 +409,10 @@ class Flight:
         if self._landing is not None:
             t_land, landing, was_blind = self._landing
             ref, blind = landing(t - t_land), blind or was_blind
-            self._event(t, "warning", f"{why}: the landing goes on")  # no change of phase to log it
         else:
             ref = self.plan(t)
+        if self.phase == Phase.LANDING:  # ours or the plan's: no change of phase to log it
+            self._event(t, "warning", f"{why}: the landing goes on" + (" blind" if blind else ""))
         if np.linalg.norm(state.position - ref.position) > self.policy.max_tracking_error_m:
             ref = Setpoint(state.position, state.velocity, np.zeros(3), ref.rotation)
         z = float(self.plan.ground[2]) - (BLIND_LANDING_DEPTH if blind else LANDING_DEPTH)
@@ -468,14 +482,12 @@ class Flight:
             if self.policy.on_mocap_fault == "stop" or state is None:
                 self._emergency(t, why)
                 return False
-            if self.phase.airborne:  # the estimator's fault: every pose rejected, so landing on the estimate
+            kind = fault.split(" (")[0]  # its counts in brackets change every period
+            if self.phase.airborne or (self.phase == Phase.LANDING and kind != self._mocap_fault_named):
+                # The estimator's fault: every pose rejected, so landing on the estimate. A landing under way (the
+                # plan's, or on stale poses) goes on, blind if need be, named once per kind of fault.
                 self._begin_landing(t, state, why, blind=bool(est.fault()))
-            elif self.phase == Phase.LANDING and fault.split(" (")[0] != self._mocap_fault_named:
-                # A landing already under way (on stale poses, say) goes on; the log says why poses that come back
-                # are not used (a second publisher after a restarted bridge without a key), once per kind of fault
-                # (its counts in brackets change every period).
-                self._event(t, "warning", f"{why}: the landing goes on")
-            self._mocap_fault_named = fault.split(" (")[0]
+            self._mocap_fault_named = kind
         if self.gyros.fault and self.phase.airborne and state is not None:
             self._begin_landing(t, state, f"gyro fault: {self.gyros.fault}")
         if state is None or age > self.policy.mocap_timeout_s:
@@ -486,7 +498,7 @@ class Flight:
             if self.policy.on_mocap_stale == "stop" or state is None:
                 self._emergency(t, why)
                 return False
-            if self.phase != Phase.LANDING:
+            if self._landing is None or not self._landing[2]:  # not yet landing blind (the plan's landing too)
                 self._begin_landing(t, state, why + ": landing blind on the estimate", blind=True)
             sigma = est.estimate().position_sigma
             if sigma > self.policy.max_position_sigma_m:
@@ -502,6 +514,13 @@ class Flight:
         if state.rotation[2, 2] < self._cos_tilt:
             self._emergency(t, f"tilt beyond {self.policy.max_tilt_deg:g} deg")
             return False
+        unmoved = self._unmoved_by_thrust(t)
+        if unmoved:
+            if state.position[2] - float(self.plan.ground[2]) < NEAR_GROUND_M:
+                self._emergency(t, unmoved)
+                return False
+            if self.phase.airborne:
+                self._begin_landing(t, state, unmoved)
         if self.requests.land.is_set() and self.phase.airborne:
             self._begin_landing(t, state, self.requests.why(OPERATOR_LAND))
         if self.log is not None and self.log.error is not None and not self._log_failure_seen:
@@ -541,6 +560,20 @@ class Flight:
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
         return True
+
+    def _unmoved_by_thrust(self, t: float) -> str:
+        """Why the assembly does not move as its thrust says ("" while it does): the estimator's disturbance beyond
+        ``max_disturbance_mps2`` for ``DISTURBANCE_HOLD_S`` with the motors running."""
+        e = self.estimator.estimate()
+        d = float(np.linalg.norm(e.disturbance)) if e is not None else 0.0
+        if not (self.phase.airborne or self.phase == Phase.LANDING) or d <= self.policy.max_disturbance_mps2:
+            self._disturbed_since = None
+            return ""
+        self._disturbed_since = t if self._disturbed_since is None else self._disturbed_since
+        if t - self._disturbed_since < DISTURBANCE_HOLD_S:
+            return ""
+        return (f"the assembly does not move as its thrust says ({d:.1f} m/s^2 unexplained for "
+                f"{(t - self._disturbed_since) * 1e3:.0f} ms): tied down, or mocap.body names another body")
 
     def _landing_reference(self, t: float) -> Setpoint:
         """The landing's reference at ``t``: level, the plan's yaw."""

@@ -93,7 +93,14 @@ _KEY_CHUNK = re.compile(r"[^/*$?#\s]+")
 """One concrete Zenoh key chunk: not empty, no separator, wildcard or forbidden character."""
 
 
+MAX_KEY_CHARS = 100
+"""Longest ``mocap.body`` and ``mocap.key_prefix``, characters: a name, not a payload (a 70000-character prefix made
+Zenoh panic declaring the subscriber)."""
+
+
 def _concrete_key(value: str, chunks: str) -> str:
+    if len(value) > MAX_KEY_CHARS:
+        raise ValueError(f"must be at most {MAX_KEY_CHARS} characters, not {len(value)}")
     if not all(_KEY_CHUNK.fullmatch(c) for c in value.split("/")) or (chunks == "one" and "/" in value):
         what = "one key chunk" if chunks == "one" else "key chunks separated by '/'"
         raise ValueError(f"must be {what}, concrete (not empty; no '*', '$', '?', '#' or spaces), not {value!r}")
@@ -198,6 +205,7 @@ class GainsSection:
     position_zeta: float = Field(Gains.position_zeta, gt=0)
     attitude_hz: float = Field(Gains.attitude_hz, gt=0)
     attitude_zeta: float = Field(Gains.attitude_zeta, gt=0)
+    max_tilt_deg: float = Field(Gains.max_tilt_deg, gt=0, le=60)
 
 
 _FenceM = Annotated[float, Field(ge=-MAX_GEOFENCE_M, le=MAX_GEOFENCE_M)]
@@ -234,6 +242,8 @@ class FailsafeSection:
     max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
     """Airborne, the measured position farther than this from the reference lands the flight, m (below the
     geofence's diagonal: :func:`bound_issues`)."""
+    max_disturbance_mps2: float = Field(FailsafePolicy.max_disturbance_mps2, gt=0, le=100)
+    """The acceleration the model misses may not stay above this, m/s^2 (at most 100: 10 g)."""
 
 
 @dataclass(frozen=True, config=_STRICT)

@@ -97,13 +97,16 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_*``, ``link_lost``, ``gyro_failed`` and ``tied_down`` act on the in-process simulator only; with
+    ``mocap_*``, ``link_lost``, ``gyro_failed``, ``tied_down`` and ``push_n`` act on the in-process simulator only; with
     simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
     mocap_frozen: bool = False
     """The virtual mocap publishes its last pose again and again, freshly stamped."""
+    mocap_decoy: bool = False
+    """The virtual mocap measures another body, resting where the assembly stood (``mocap.body`` naming the wrong
+    one), with its noise and stamps."""
     mocap_restarts: int = 0
     """Each increase restarts the virtual mocap's publisher: a new one (a new entity id, its sequence from 1), as a
     restarted bridge (pause it meanwhile with ``mocap_paused``: a restart takes a while)."""
@@ -115,6 +118,8 @@ class Faults:
     """This module's gyro reads full scale (2000 deg/s) about its x axis (a failed IMU)."""
     tied_down: bool = False
     """The assembly is fixed where it is (a forgotten tie-down, a snagged cable): the rotors spin, it stays."""
+    push_n: tuple[float, float, float] | None = None
+    """A force on the assembly meanwhile, world frame, N (a shove, a gust)."""
     pose_stamp: float | None = None
     """The mocap samples logged meanwhile carry this publish stamp instead of theirs (a source whose clock is broken:
     NaN, negative, in milliseconds); the log writer must reject them, not fail. The estimate is not affected."""
@@ -204,8 +209,11 @@ class _LoggedPose:
 
 def code_version() -> str:
     try:
+        # A session of its own: the terminal's Ctrl-Z would stop git (the flight's own handler lands instead) and
+        # hold the preflight for the whole timeout.
         rev = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True, timeout=5,
-                             cwd=Path(__file__).resolve().parent).stdout.strip()
+                             cwd=Path(__file__).resolve().parent, start_new_session=True,
+                             stdin=subprocess.DEVNULL).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         rev = ""
     return f"{__version__}" + (f" ({rev})" if rev else "")
@@ -553,11 +561,17 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, to_log: Callable[[fl
     return stats
 
 
+LANDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGTSTP, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
+                   signal.SIGUSR2, signal.SIGALRM)
+"""Signals a flight lands on. By default each of the last four ends the process (Ctrl-\\ dumps core): in flight,
+the modules' watchdogs cut the motors and the assembly falls. Here they are SIGTERM."""
+
+
 def _install_signals(requests: Requests, started: threading.Event):
-    """First SIGINT/SIGTERM/SIGTSTP/SIGHUP: land (before the loop starts: end the flight unarmed, at the next check).
-    Second SIGINT/SIGTERM/SIGTSTP: stop the motors; before the loop starts, nothing is armed, so it also interrupts
-    whatever the flight waits for (a link that does not open). The signal's name goes into the reason. Returns a
-    function restoring the old handlers.
+    """First SIGINT/SIGTERM/SIGTSTP/SIGHUP (or another of :data:`LANDING_SIGNALS`): land (before the loop starts: end
+    the flight unarmed, at the next check). A second one but SIGHUP: stop the motors; before the loop starts,
+    nothing is armed, so it also interrupts whatever the flight waits for (a link that does not open). The
+    signal's name goes into the reason. Returns a function restoring the old handlers.
 
     * SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process, rotors on.
       It never escalates to a stop, nor does a SIGTERM after it: one hang-up can deliver two (the kernel's to the
@@ -584,7 +598,7 @@ def _install_signals(requests: Requests, started: threading.Event):
                 raise KeyboardInterrupt
         requests.land.set()
 
-    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGTSTP, signal.SIGHUP)}
+    old = {s: signal.signal(s, handler) for s in LANDING_SIGNALS}
     old |= {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGTTIN, signal.SIGTTOU)}
 
     def restore():

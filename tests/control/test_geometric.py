@@ -99,3 +99,21 @@ def test_the_turn_rate_fed_forward_is_the_freed_pitch_rate_of_the_figure8():
         assert abs(w[0]) < 1e-9 and abs(w[2]) < 1e-9
         rates.append(abs(w[1]))
     assert max(rates) > 0.1  # it swings: rad/s
+
+
+@pytest.mark.parametrize("max_tilt_deg", [30.0, 10.0])
+def test_a_reference_far_off_asks_for_a_bounded_lean_keeping_the_altitude_part(max_tilt_deg):
+    """A reference 5 m to the side (a shove, a jump in the plan): the desired force leans max_tilt_deg from
+    vertical, not 80 deg; its vertical part is what holds the altitude (m g here), its direction the error's."""
+    model = ControlModel.from_assembly(FULL)
+    state = RigidState(np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3))
+    sp = Setpoint(np.array([3.0, 4.0, 0.0]), np.zeros(3), np.zeros(3), np.eye(3))
+    f = control(state, sp, model, Gains(max_tilt_deg=max_tilt_deg)).force_world
+    assert np.degrees(np.arctan2(np.hypot(f[0], f[1]), f[2])) == pytest.approx(max_tilt_deg)
+    assert f[2] == pytest.approx(model.mass * 9.81, rel=1e-3)
+    assert f[1] / f[0] == pytest.approx(4.0 / 3.0)
+    near = Setpoint(np.array([0.03, 0.04, 0.0]), np.zeros(3), np.zeros(3), np.eye(3))  # within the bound: as is
+    f = control(state, near, model, Gains(max_tilt_deg=max_tilt_deg)).force_world
+    wp = 2 * np.pi * Gains().position_hz
+    np.testing.assert_allclose(f, [model.mass * wp ** 2 * 0.03, model.mass * wp ** 2 * 0.04, model.mass * 9.81],
+                               rtol=1e-3)

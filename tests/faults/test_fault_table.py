@@ -66,6 +66,8 @@ BAD_INPUTS = [
     ("mocap_body_stats", {'body = "assembly"': 'body = "stats"'}, (),
      "mocap.body: 'stats' is the name of the log's /mocap/stats channel"),
     ("mocap_key_prefix_wildcard", {'key_prefix = "mocap"': 'key_prefix = "mocap/**"'}, (), "mocap.key_prefix"),
+    ("mocap_key_prefix_70000_characters", {'key_prefix = "mocap"': f'key_prefix = "{"m" * 70000}"'}, (),
+     "mocap.key_prefix: must be at most 100 characters, not 70000"),
     ("negative_mocap_timeout", {"mocap_timeout_s = 0.25": "mocap_timeout_s = -1"}, (), "mocap_timeout_s"),
     ("three_links_for_two_modules", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:1", '
                                      '"udp://127.0.0.1:2", "udp://127.0.0.1:3"]'}, (), "backend.modules"),
@@ -199,17 +201,35 @@ def f_mocap_dropout(cli, tmp_path):
 
 
 @link_or_load("the assembly is tied to the ground",
-              "landing once 0.5 m from the reference, reason names it, exit 1")
+              "motors off on the ground in the take-off: it does not move as its thrust says (the reason names it), "
+              "exit 1")
 def f_tied_down(cli, tmp_path):
     from groundstation.runtime.fly import Faults
 
     faults = Faults(tied_down=True)
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7493"), duration=4.0, log_path=tmp_path / "tied.mcap",
               faults=faults)
-    assert res.phase == "done" and res.reason.startswith("not following the reference: 0.5"), res.reason
-    assert not res.nominal and res.metrics.simulated_s < res.metrics.planned_s
-    # during the take-off, not after the plan
-    assert any(text.startswith("takeoff -> landing: not following") for _, _, text in res.events), res.events
+    assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
+        res.reason
+    assert res.reason.endswith("tied down, or mocap.body names another body")
+    assert not res.nominal and res.metrics.simulated_s < 2.0  # during the take-off, not after the plan
+
+
+@lying_mocap("mocap.body names another body, resting where the assembly stands (a decoy; dry run)",
+             "preflight cannot tell (still, level, where expected); in the take-off the assembly does not move as its "
+             "thrust says: motors off below 1 m (before, it climbed to 12 m while the flight 'landed' the decoy), "
+             "exit 1")
+def f_mocap_decoy_body(cli, tmp_path):
+    from groundstation.runtime.fly import Faults
+
+    log = tmp_path / "decoy.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7543"), duration=4.0, log_path=log,
+              faults=Faults(mocap_decoy=True))
+    assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
+        res.reason
+    _, _, _, motors = read_log(log)
+    heights = [m["truth"]["position_m"][2] - motors[0][1]["truth"]["position_m"][2] for _, m in motors if "truth" in m]
+    assert max(heights) < 1.0, max(heights)
 
 
 # -- the loop ----------------------------------------------------------------------------------------------------

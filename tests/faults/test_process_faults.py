@@ -201,6 +201,35 @@ def f_sighup_twice_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 7668, signal.SIGHUP), signal.SIGHUP)
 
 
+@process_fault("Ctrl-\\ (SIGQUIT) in flight",
+               "a landing like Ctrl-C (by default it ends the process and the assembly falls); exit 0")
+def f_sigquit_in_flight(cli, tmp_path):
+    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGQUIT], 7673, signal.SIGQUIT), signal.SIGQUIT)
+
+
+@process_fault("SIGUSR1 in flight (a stray kill -USR1; SIGUSR2 and SIGALRM alike)",
+               "a landing like SIGTERM (by default it ends the process and the assembly falls); exit 0")
+def f_sigusr1_in_flight(cli, tmp_path):
+    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGUSR1], 7674, signal.SIGUSR1), signal.SIGUSR1)
+
+
+@process_fault("fly --json with its stdout on a full device (/dev/full)",
+               "the flight flies and lands as planned; one line on stderr says the summary could not be printed and "
+               "where the log is; exit 0")
+def f_stdout_full(cli, tmp_path):
+    log = tmp_path / "full.mcap"
+    err_path = tmp_path / "full.err"
+    with open("/dev/full", "w") as full, err_path.open("w") as err:
+        proc = subprocess.run([sys.executable, "-m", "groundstation", "fly",
+                               str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7675")), "--log", str(log), "--json",
+                               "--duration", "1"], stdout=full, stderr=err, cwd=ROOT, timeout=300)
+    err = err_path.read_text()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert f"cannot print the flight's summary (No space left on device); it is in the log {log}" in err, err
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "done" and r["reason"] == ""
+
+
 @process_fault("the terminal hanging up in flight (fly on a pseudo-terminal whose other end closes: an SSH "
                "connection dropping; the kernel's SIGHUP, then EIO on every write to it)",
                "a landing; the status line's last redraw and the summary's lines go nowhere instead of ending the "

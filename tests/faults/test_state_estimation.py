@@ -21,7 +21,7 @@ from tests.faults.table import Fault, estimate_fault, rows
 from tests.faults.test_fault_table import _records
 from tests.faults.test_process_faults import _replayed
 from tests.peers import ROOT, peer_process
-from tests.runtime.test_fly import TRACK_START_S, config_with, read_log, sitl_config
+from tests.runtime.test_fly import SETTLE_S, TRACK_START_S, config_with, read_log, sitl_config
 
 LANDING = {"duration = 16.0\n": "duration = 16.0\nlanding_s = 1.5\n"}
 """The rows that judge a landing (upright, on the ground) land in 1.5 s, not the test flights' 1 s: one gyro or
@@ -40,6 +40,16 @@ def _truth(log) -> list[tuple[float, str, float, float]]:
     _, _, _, motors = read_log(log)
     return [(m["t_s"], m["phase"], m["truth"]["position_m"][2], _tilt_deg(m["truth"]["orientation"]))
             for _, m in motors if "truth" in m]
+
+
+def _touched_down_upright(log) -> None:
+    """The physics' tilt stayed below 15 deg and the assembly ended on the ground it took off from."""
+    _touched_down_upright_within(log, 15.0)
+
+
+def _touched_down_upright_within(log, tilt_deg: float) -> None:
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < tilt_deg and abs(truth[-1][2] - truth[0][2]) < 0.03
 
 
 def _injected(faults: Faults, name: str, value, at: float = TRACK_START_S + 2.5):
@@ -146,8 +156,7 @@ def f_mocap_bridge_restarted_keyed(cli, tmp_path):
     texts = [e["text"] for e in _replayed(cli, log)["events"]]
     assert any(t.startswith("mocap source changed: a new publisher on mocap/assembly/pose after ") for t in texts), \
         texts
-    truth = _truth(log)
-    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+    _touched_down_upright(log)
     _, _, _, motors = read_log(log)
     after = [m["estimate"]["position_sigma_m"] for _, m in motors
              if "estimate" in m and m["t_s"] > TRACK_START_S + 3.3 and m["phase"] == "landing"]
@@ -162,9 +171,54 @@ def f_mocap_bridge_restarted_unkeyed(cli, tmp_path):
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
     assert stats["handovers"] == 0 and stats["foreign"] > 0, stats
     named = [text for _, _, text in res.events if text.startswith("mocap fault: a second publisher")]
-    assert len(named) == 1 and named[0].endswith("the landing goes on"), res.events  # named once
-    truth = _truth(log)
-    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+    assert len(named) == 1 and named[0].endswith("the landing goes on blind"), res.events  # named once
+    _touched_down_upright(log)
+
+
+def _faulted_in_the_plans_landing(tmp_path, port: int, name: str):
+    """A dry run whose ``faults.name`` turns on 0.3 s into the plan's own landing (1.5 s from 1 m: fast), for the
+    rest of the flight; (result, log)."""
+    faults = Faults()
+    landing_starts = TRACK_START_S + 2.0 + SETTLE_S
+    log = tmp_path / f"{name}.mcap"
+    res = fly(config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}", **LANDING), duration=2.0, log_path=log,
+              faults=faults, on_period=lambda t: setattr(faults, name, t >= landing_starts + 0.3))
+    return res, log
+
+
+def _landed_blind_from_the_plans_landing(res, log, reason: str) -> None:
+    assert res.phase == "done" and res.reason.startswith(reason) and not res.nominal, res.reason
+    assert any(text.startswith(reason) and text.endswith("the landing goes on blind") for _, _, text in res.events)
+    _touched_down_upright(log)
+
+
+@estimate_fault("mocap: no pose from 0.3 s into the plan's own landing (dry run)",
+                "named, the landing goes on blind at the blind descent rate (not the plan's 1.5 s from 1 m on a "
+                "frozen estimate: it touched down at 0.9 m/s, reported as planned); touches down upright, exit 1")
+def f_mocap_stale_in_the_plans_landing(cli, tmp_path):
+    _landed_blind_from_the_plans_landing(*_faulted_in_the_plans_landing(tmp_path, 7540, "mocap_paused"),
+                                         "mocap stale")
+
+
+@estimate_fault("mocap: every pose not a number from 0.3 s into the plan's own landing (dry run)",
+                "the estimator's fault named, the landing goes on blind; touches down upright, exit 1")
+def f_mocap_fault_in_the_plans_landing(cli, tmp_path):
+    _landed_blind_from_the_plans_landing(*_faulted_in_the_plans_landing(tmp_path, 7541, "corrupt_pose"),
+                                         "mocap fault: every pose rejected for ")
+
+
+@estimate_fault("a 10 N shove along the V's pitch axis for 100 ms in tracking (2 m/s; dry run)",
+                "the controller leans at most 30 deg (unbounded it tipped past 75 deg: motors off at 0.86 m); it "
+                "flies on or lands 'not following the reference', touching down upright")
+def f_shove_10n(cli, tmp_path):
+    faults = Faults()
+    at = TRACK_START_S + 1.5
+    log = tmp_path / "shove.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7542", **LANDING), duration=4.0, log_path=log,
+              faults=faults, on_period=lambda t: setattr(faults, "push_n", (10.0, 0.0, 0.0) if at <= t < at + 0.1
+                                                         else None))
+    assert res.phase == "done", res.reason
+    _touched_down_upright_within(log, 35.0)
 
 
 @estimate_fault("mocap: a frozen but freshly stamped pose while the assembly flies its figure-8 (dry run)",
@@ -180,8 +234,7 @@ def f_mocap_frozen_pose(cli, tmp_path):
     assert "a frozen stream" in res.reason
     named = [t for t, _, text in res.events if "landing: mocap fault" in text]
     assert named and named[0] - frozen[0] <= 0.1, (named, frozen)
-    truth = _truth(log)
-    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+    _touched_down_upright(log)
 
 
 @estimate_fault("a module's gyro fails in tracking: reads 2000 deg/s, full scale (dry run)",
@@ -197,8 +250,7 @@ def f_gyro_failed(cli, tmp_path):
     assert "left out of the body rate" in res.reason
     named = [t for t, _, text in res.events if "landing: gyro fault" in text]
     assert named and named[0] - failed[0] <= 0.01, (named, failed)  # the period it shows, or the next
-    truth = _truth(log)
-    assert max(tilt for *_, tilt in truth) < 15.0 and abs(truth[-1][2] - truth[0][2]) < 0.03
+    _touched_down_upright(log)
     _, _, _, motors = read_log(log)
     after = [m for _, m in motors if "state" in m and 0.0 <= m["t_s"] - failed[0] < 0.3]
     # the failed reading never reached the estimate: one period of half of it (1000 deg/s) would have turned the

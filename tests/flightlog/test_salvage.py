@@ -148,7 +148,7 @@ def test_recover_writes_every_intact_message_to_a_valid_finalized_file(tmp_path)
     assert json.dumps(counts)  # the command prints it
 
 
-def test_recover_refuses_to_overwrite_its_source_and_a_foreign_file_is_named(tmp_path):
+def test_recover_never_overwrites_its_source_or_another_file_and_a_foreign_file_is_named(tmp_path):
     log = tmp_path / "log.mcap"
     log.write_bytes(flight_log().read_bytes())
     with pytest.raises(UsageError, match="is the log to recover"):
@@ -158,3 +158,8 @@ def test_recover_refuses_to_overwrite_its_source_and_a_foreign_file_is_named(tmp
     text.write_text("not a log")
     with pytest.raises(ConfigError, match="notes.mcap: not an MCAP file"):
         recover(text, tmp_path / "out.mcap")
+    good = tmp_path / "good.mcap"  # another log, where the recovered copy was asked to go
+    good.write_bytes(flight_log().read_bytes())
+    with pytest.raises(UsageError, match="good.mcap: the file exists; a log is never overwritten"):
+        recover(log, good)
+    assert good.read_bytes() == flight_log().read_bytes()

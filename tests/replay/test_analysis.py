@@ -198,22 +198,28 @@ def test_gyro_lag_of_a_config_whose_sections_are_not_tables(sim_flight, tmp_path
     assert code == 2 and err.count("\n") == 1 and "config: the log's config has no usable mocap" in err, err
 
 
-def test_a_record_that_is_not_json_is_skipped_with_a_warning(sim_flight, tmp_path):
+@pytest.mark.parametrize("spoilt, why", [
+    (b"[" * 100000, "(not a JSON object)"),  # not JSON
+    (b"[1, 2]", "(not a JSON object)"),  # JSON, not an object
+    (b'{"t_s": "soon", "phase": 3}', ""),  # an object, not the topic's
+    (b'{"t_s": 1.0, "phase": "track", "state": {}, "modules": [[]]}', "")])
+def test_a_record_that_is_not_the_topics_is_skipped_with_a_warning(sim_flight, tmp_path, spoilt, why):
     """Intact bytes (their CRC holds) that are not what the topic holds: skipped, counted in a warning, the log not
     complete; every other period read."""
     res, log = sim_flight
     bad, first = tmp_path / "bad.mcap", []
 
     def spoil(topic, rec):
-        if topic == "/control" and not first:
+        if topic == "/control" and len(first) < 3 and rec.get("phase") == "track":
             first.append(rec)
-            return b"[" * 100000
+            return spoilt
         return rec
 
     copy_log(log, bad, record=spoil)
     r = analyse(bad)
-    assert r.metrics.periods == analyse(log).metrics.periods - 1
-    assert not r.complete and "1 message(s) on /control are not what the topic holds (not JSON): skipped" in r.warnings
+    assert r.metrics.periods == analyse(log).metrics.periods - 3
+    warning = "3 message(s) on /control are not what the topic holds" + (f" {why}" if why else "") + ": skipped"
+    assert not r.complete and warning in r.warnings, r.warnings
 
 
 def test_log_without_telemetry_channels(sim_flight, tmp_path):
