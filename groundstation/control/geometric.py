@@ -30,7 +30,6 @@ from groundstation.assembly.module import GRAVITY
 from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import euler_zyx, roll_pitch_yaw
-from groundstation.rotations import matrix_to_rotvec
 
 E3 = np.array([0.0, 0.0, 1.0])
 
@@ -130,17 +129,15 @@ def adapt_attitude(target: np.ndarray, force_world: np.ndarray, model: ControlMo
     return target
 
 
-def reference_turn_rate(now: Setpoint, later: Setpoint, h: float, model: ControlModel) -> np.ndarray:
-    """The body rate (rad/s, desired body frame) at which the attitude target turns while the reference is followed
-    exactly: :func:`adapt_attitude` of the reference's own force (``m a_d + m g e3``) at ``now`` and at ``later``,
-    ``h`` s after. The V's freed pitch follows the force, swinging +-4.3 deg at up to 0.12 rad/s on the README's
-    figure-8; not fed forward, the attitude loop lagged it by ``2 zeta w / w_R`` (0.5 deg: the dry run's
-    orientation error p95 was 1.0 deg with it, 0.74 without). The feedback part of the force (noise) is left out:
-    its rate would chatter."""
+def reference_attitude(sp: Setpoint, model: ControlModel) -> np.ndarray:
+    """The attitude the controller targets while ``sp`` is followed exactly: :func:`adapt_attitude` of the
+    reference's own force (``m a_d + m g e3``). Its rate is fed forward (the flight differentiates it from one
+    period to the next): the V's freed pitch follows the force, swinging +-4.3 deg at up to 0.12 rad/s on the
+    README's figure-8, and not fed forward, the attitude loop lagged it by ``2 zeta w / w_R`` (0.5 deg: the dry
+    run's orientation error p95 was 1.0 deg with it, 0.74 without). The feedback part of the force (noise) is left
+    out: its rate would chatter."""
     m = model.mass
-    r0 = adapt_attitude(now.rotation, m * now.acceleration + (m * GRAVITY) * E3, model)
-    r1 = adapt_attitude(later.rotation, m * later.acceleration + (m * GRAVITY) * E3, model)
-    return matrix_to_rotvec(r0.T @ r1) / h
+    return adapt_attitude(sp.rotation, m * sp.acceleration + (m * GRAVITY) * E3, model)
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -545,6 +545,11 @@ class RigidBodyFilter:
             self._state = RigidState(rows[0], rows[1], rows[3:], rows[2])
         return self._state  # never changed in place: shared
 
+    @property
+    def disturbance(self) -> float:
+        """Magnitude of the acceleration the model misses, m/s^2 (cheap: read every period)."""
+        return math.hypot(*self._d)
+
     def estimate(self) -> Estimate | None:
         state = self.state()
         if state is None:

@@ -37,7 +37,7 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import Backend, SimulatedBackend, Telemetry
 from groundstation.control.allocation import allocate, allocate_bounded
-from groundstation.control.geometric import Gains, control, reference_turn_rate
+from groundstation.control.geometric import Gains, control, reference_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
@@ -47,6 +47,7 @@ from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.gyro_check import GyroAgreement
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.loop_activity import LoopActivity
+from groundstation.rotations import matrix_to_rotvec
 from groundstation.runtime.loop import (
     Clock,
     LoopStats,
@@ -150,8 +151,9 @@ class FailsafePolicy:
     standard deviation (per axis) passes this, m: until then the flight lands blind, level, at
     ``blind_descent_mps``."""
     blind_descent_mps: float = 0.5
-    """A landing begun because mocap went stale descends at this rate, m/s (from 1 m in 2 s: the estimate's
-    uncertainty grows with the cube of the time flown blind)."""
+    """A landing begun because mocap went stale descends at this rate on average, m/s (from 1 m in 2 s: the
+    estimate's uncertainty grows with the cube of the time flown blind). The landing's smooth profile peaks near
+    twice that; touchdowns measured 0.6-0.8 m/s."""
     max_tracking_error_m: float = 0.5
     """Airborne, the measured position farther than this from the reference lands the flight: the assembly is not
     following its commands (held down, too heavy for its modules, an assembly file that is not the one flying).
@@ -285,8 +287,8 @@ DISTURBANCE_HOLD_S = 0.1
 """How long the disturbance must stay beyond ``max_disturbance_mps2`` (a shove's lasts a tenth of a second), s."""
 NEAR_GROUND_M = 0.3
 """An estimate this close above the ground has nothing to land from, m."""
-TURN_RATE_STEP_S = 0.004
-"""The attitude target's rate fed forward is taken over this step of the reference, s."""
+TURN_RATE_MAX_GAP_S = 0.05
+"""The reference's turn rate is taken over the step from the previous period when no longer than this, s."""
 BLIND_LANDING_DEPTH = 0.15
 """A blind landing (on the estimate alone) aims this far below the ground, m: the estimate may be several cm off
 after seconds without mocap (measured in the dry run: 5-8 cm high after 2 s), and aiming low lands it anyway."""
@@ -350,6 +352,8 @@ class Flight:
         self._failed_modules: set[int] = set()
         self._disturbed_since: float | None = None
         """Flight time since which the disturbance has been beyond ``max_disturbance_mps2``, s."""
+        self._reference_attitude: tuple[float, object, np.ndarray] | None = None
+        """(flight time s, its reference, the attitude target of the reference alone) of the previous period."""
         self._mocap_fault_named = ""
         """The kind of mocap fault last seen (its text without the counts)."""
         """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
@@ -548,8 +552,7 @@ class Flight:
             if error > self.policy.max_tracking_error_m:
                 self._begin_landing(t, state, f"not following the reference: {error:.2f} m from it > "
                                                        f"{self.policy.max_tracking_error_m:g} m")
-        sp = replace(sp, omega=reference_turn_rate(sp, reference(t + TURN_RATE_STEP_S), TURN_RATE_STEP_S,
-                                                   self.model))
+        sp = replace(sp, omega=self._turn_rate(t, sp, "plan" if reference is self.plan else self._landing[0]))
         out = control(state, sp, self.model, self.gains)
         u = self.alloc(out.wrench, self.model)
         if not np.all(np.isfinite(u)):
@@ -564,8 +567,7 @@ class Flight:
     def _unmoved_by_thrust(self, t: float) -> str:
         """Why the assembly does not move as its thrust says ("" while it does): the estimator's disturbance beyond
         ``max_disturbance_mps2`` for ``DISTURBANCE_HOLD_S`` with the motors running."""
-        e = self.estimator.estimate()
-        d = float(np.linalg.norm(e.disturbance)) if e is not None else 0.0
+        d = self.estimator.disturbance
         if not (self.phase.airborne or self.phase == Phase.LANDING) or d <= self.policy.max_disturbance_mps2:
             self._disturbed_since = None
             return ""
@@ -574,6 +576,16 @@ class Flight:
             return ""
         return (f"the assembly does not move as its thrust says ({d:.1f} m/s^2 unexplained for "
                 f"{(t - self._disturbed_since) * 1e3:.0f} ms): tied down, or mocap.body names another body")
+
+    def _turn_rate(self, t: float, sp: Setpoint, source) -> np.ndarray:
+        """The body rate at which the reference's attitude target turns (:func:`reference_attitude`), rad/s: from
+        the previous period's to this one's; zero in the first period of a reference (``source``: the plan, or the
+        landing's start) or after a gap of more than ``TURN_RATE_MAX_GAP_S``."""
+        r = reference_attitude(sp, self.model)
+        before, self._reference_attitude = self._reference_attitude, (t, source, r)
+        if before is None or before[1] != source or not 0.0 < t - before[0] <= TURN_RATE_MAX_GAP_S:
+            return np.zeros(3)
+        return matrix_to_rotvec(before[2].T @ r) / (t - before[0])
 
     def _landing_reference(self, t: float) -> Setpoint:
         """The landing's reference at ``t``: level, the plan's yaw."""

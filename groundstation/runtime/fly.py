@@ -47,7 +47,7 @@ from groundstation.estimation.filter import RigidBodyFilter
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.firmware.modules import check_modules, required_params
 from groundstation.firmware.params import issues as param_issues
-from groundstation.flightlog.mcap_log import FlightLog, claim
+from groundstation.flightlog.mcap_log import WRITER_START_S, FlightLog, claim
 from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.auth import MocapKey
 from groundstation.mocap.zenoh_link import (
@@ -476,6 +476,28 @@ def _release(path: Path) -> None:
             path.unlink()
 
 
+def _log_issues(log: FlightLog, requests: Requests) -> list[str]:
+    """Preflight: the log's start (header and metadata) is on disk, or why not. Its writer is a process of its own
+    that may still be starting: waited for up to ``WRITER_START_S``. A log directory on a full disk armed and took
+    off with an empty log before (then landed on the writer's failure)."""
+    deadline = time.monotonic() + WRITER_START_S
+    while log.error is None and _size(log.path) == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+        _stop_if_asked(requests)
+    if log.error is not None:
+        return [f"the log: {log.error}"]
+    if _size(log.path) == 0:
+        return [f"the log: nothing of {log.path} is on disk after {WRITER_START_S:g} s (a full disk?)"]
+    return []
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
 def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est: RigidBodyFilter, log: FlightLog,
                firmware_issues: list[str], to_log: Callable[[float], float], requests: Requests) -> FlightPlan:
     """Stage 3: let the mocap stream start (and a simulated assembly settle), check the backend, mocap, level and
@@ -501,7 +523,7 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
         for sample in pose.measurements():
             est.correct(sample)
     s = est.state()
-    issues = list(world.backend.preflight().issues) + firmware_issues
+    issues = list(world.backend.preflight().issues) + firmware_issues + _log_issues(log, requests)
     _stop_if_asked(requests)
     if sub.fault():
         issues.append(f"mocap: {sub.fault()}")

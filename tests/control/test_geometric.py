@@ -75,13 +75,15 @@ def test_attitude_error_sign_restores():
     assert out.wrench[3] < 0 and out.attitude_error[0] > 0  # positive roll error -> negative roll torque
 
 
-def test_the_turn_rate_fed_forward_is_the_freed_pitch_rate_of_the_figure8():
+def test_the_reference_attitude_turns_at_the_freed_pitch_rate_of_the_figure8():
     """The V (no force along body x) holding roll and yaw at 0 must pitch to theta = atan(a_x / (g + a_z)) to
-    produce the reference's force: the rate fed forward is d theta / dt about body y, recomputed here from the
-    figure-8's accelerations alone (central differences), not from the attitude adaptation."""
+    produce the reference's force: its reference attitude turns at d theta / dt about body y (what the flight feeds
+    forward), recomputed here from the figure-8's accelerations alone (central differences), not from the attitude
+    adaptation."""
     from groundstation.assembly.module import GRAVITY
-    from groundstation.control.geometric import reference_turn_rate
+    from groundstation.control.geometric import reference_attitude
     from groundstation.control.trajectory import Figure8
+    from groundstation.rotations import matrix_to_rotvec
 
     model = ControlModel.from_assembly(V)
     fig8 = Figure8(l0=0.6, tc=8.0, h0=1.0, duration=8.0)
@@ -93,7 +95,7 @@ def test_the_turn_rate_fed_forward_is_the_freed_pitch_rate_of_the_figure8():
 
     rates = []
     for t in np.linspace(0.0, 8.0, 17):
-        w = reference_turn_rate(fig8(t), fig8(t + 0.004), 0.004, model)
+        w = matrix_to_rotvec(reference_attitude(fig8(t), model).T @ reference_attitude(fig8(t + 0.004), model)) / 0.004
         expected = (pitch(t + 0.002 + h) - pitch(t + 0.002 - h)) / (2 * h)  # the step's midpoint
         assert w[1] == pytest.approx(expected, rel=1e-3, abs=1e-5)
         assert abs(w[0]) < 1e-9 and abs(w[2]) < 1e-9

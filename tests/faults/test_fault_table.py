@@ -24,6 +24,7 @@ import pytest
 from groundstation.errors import PreflightError
 from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
+from tests.disks import tiny_disk
 from tests.faults.table import Fault, bad_input, link_or_load, lying_mocap, module_fault, process_fault, rows
 from tests.peers import ROOT, host_freezes, peer_process, stopped_by_host, world_priority
 from tests.runtime.test_fly import TRACK_START_S, config_with, quick_phases, read_log, sitl_config
@@ -358,6 +359,22 @@ def f_full_disk(cli, tmp_path):
         kept = shutil.copy(log, tmp_path / "kept.mcap")
     r = analyse(kept)  # cut short, read up to the cut
     assert not r.complete and r.metrics.periods > 250
+
+
+@process_fault("the log's disk is full before the take-off (no byte of the log can be written)",
+               "refused in preflight, never armed (before, it took off with an empty log), one line naming the log; "
+               "exit 2")
+def f_full_disk_before_takeoff(cli, tmp_path):
+    with tiny_disk(tmp_path / "disk") as disk:
+        with contextlib.suppress(OSError), (disk / "filler").open("wb") as filler:
+            while True:  # until the disk is full (ENOSPC)
+                filler.write(b"\0" * 4096)
+                filler.flush()
+        log = disk / "empty.mcap"
+        code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7544")), "--duration", "2",
+                             "--log", str(log))
+        assert code == 2 and "preflight failed" in err and "the log: " in err and "Traceback" not in err, err
+        assert log.stat().st_size == 0
 
 
 # -- the Crazyflie link: a loopback relay between the ground station and the simulated modules ----------------------
