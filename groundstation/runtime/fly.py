@@ -505,9 +505,12 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
     here on (the flight goes on with it). Raises PreflightError, or :class:`_Stopped` when the operator asks to
     land or stop meanwhile (a signal, a key)."""
     m = p.cfg.mocap
+    _stop_if_asked(requests)
+    # First, before the stream is watched: waited for after it, the watch's poses went stale meanwhile (a dry run's
+    # world stands still while nobody settles it) and the flight took off on a pose 0.3 s old.
+    log_issues = _log_issues(log, requests)
     watch_start = time.monotonic()
     deadline = watch_start + PREFLIGHT_TIMEOUT_S
-    _stop_if_asked(requests)
     # The assembly rests: the estimator, on mocap alone (no command, no gyro yet), says where it is, how it is
     # oriented and whether it moves.
     first_seen = None  # the watch counts from the first sample: a stream that starts late is still watched in full
@@ -523,7 +526,7 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
         for sample in pose.measurements():
             est.correct(sample)
     s = est.state()
-    issues = list(world.backend.preflight().issues) + firmware_issues + _log_issues(log, requests)
+    issues = list(world.backend.preflight().issues) + firmware_issues + log_issues
     _stop_if_asked(requests)
     if sub.fault():
         issues.append(f"mocap: {sub.fault()}")

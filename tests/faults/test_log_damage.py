@@ -120,12 +120,13 @@ def f_log_summary_damaged(cli, tmp_path):
     _summary_or_footer(cli, tmp_path, "summary")
 
 
-@process_fault("log recover onto a full disk (/dev/full)",
-               "one line naming the output file, exit 2, no traceback")
-def f_log_recover_full_disk(cli, tmp_path):
+@process_fault("log recover onto a path that exists (a link to /dev/full; a good log alike)",
+               "one line naming the output file, exit 2, nothing written there (a log is never overwritten; a full "
+               "disk: the next row)")
+def f_log_recover_onto_an_existing_path(cli, tmp_path):
     code, out, err = cli("log", "recover", str(flight_log()), str(full(tmp_path / "r.mcap")))
-    assert code == 2 and out == "" and err == f"groundstation: error: {tmp_path / 'r.mcap'}: cannot write: No space " \
-                                              f"left on device\n", err
+    assert code == 2 and out == "" and err == f"groundstation: error: {tmp_path / 'r.mcap'}: the file exists; a " \
+                                              f"log is never overwritten (choose another file)\n", err
 
 
 @process_fault("log recover onto a 64 KiB tmpfs that fills up part way through the copy",
