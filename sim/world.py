@@ -25,6 +25,11 @@ if TYPE_CHECKING:  # types only: the runtime reaches this module through grounds
     from groundstation.runtime.fly import Faults
 
 
+def _decoy(resting: RigidState, height: float) -> RigidState:
+    """Another body, at rest: where the assembly rested, ``height`` m higher."""
+    return RigidState(resting.position + np.array([0.0, 0.0, height]), np.zeros(3), resting.rotation, np.zeros(3))
+
+
 class SimulatedWorld:
     """PyBullet plus a virtual mocap; ``listen``: the Zenoh endpoints it listens on (empty: it connects to the
     config's endpoint, where the ground station listens)."""
@@ -49,6 +54,7 @@ class SimulatedWorld:
 
         restarts = [0]
         resting: list[RigidState] = []
+        climbed = [0.0, 0.0]  # the decoy's height above its rest, m; the physics time of the last step, s
 
         def observe(t_sim, state):
             resting[:] = resting or [state]  # where it stood at the start: the decoy's pose
@@ -58,7 +64,10 @@ class SimulatedWorld:
                 restarts[0] = faults.mocap_restarts
                 replaced = vmocap.restart(PosePublisher(session, key, mac_key))
                 replaced.close()
-            vmocap.on_step(t_sim, resting[0] if faults.mocap_decoy else state)
+            if faults.mocap_decoy:
+                climbed[0] += faults.mocap_decoy_climb_mps * (t_sim - climbed[1])
+            climbed[1] = t_sim
+            vmocap.on_step(t_sim, _decoy(resting[0], climbed[0]) if faults.mocap_decoy else state)
 
         self.backend = PyBulletBackend(assembly, SimConfig(physics_hz=cfg.backend.physics_hz,
                                                            motor_time_constant=cfg.backend.motor_time_constant,

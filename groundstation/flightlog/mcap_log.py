@@ -819,23 +819,30 @@ def recover(src: str | Path, dst: str | Path) -> dict:
         out = open(dst, "xb")  # noqa: SIM115 (closed below)  created exclusively: a log is never overwritten
     except FileExistsError:
         raise UsageError(f"{dst}: the file exists; a log is never overwritten (choose another file)") from None
-    with out:
-        w = _mcap_writer(out)
-        w.start(profile="", library=f"{LIBRARY} recover")
-        for rec in scan.records():  # an intact summary's schemas and channels come first, then the file's order
-            if isinstance(rec, Schema) and rec.id not in schemas:
-                schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-            elif isinstance(rec, Channel) and rec.id not in channels:
-                channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding, schemas.get(rec.schema_id, 0),
-                                                      dict(rec.metadata))
-            elif isinstance(rec, Message):
-                w.add_message(channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence)
-                kept += 1
-            elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, dict(rec.metadata))
-            elif isinstance(rec, Attachment):
-                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
-        w.finish()
+    try:
+        with out:
+            w = _mcap_writer(out)
+            w.start(profile="", library=f"{LIBRARY} recover")
+            for rec in scan.records():  # an intact summary's schemas and channels come first, then the file's order
+                if isinstance(rec, Schema) and rec.id not in schemas:
+                    schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+                elif isinstance(rec, Channel) and rec.id not in channels:
+                    channels[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
+                                                          schemas.get(rec.schema_id, 0), dict(rec.metadata))
+                elif isinstance(rec, Message):
+                    w.add_message(channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence)
+                    kept += 1
+                elif isinstance(rec, Metadata):
+                    w.add_metadata(rec.name, dict(rec.metadata))
+                elif isinstance(rec, Attachment):
+                    w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
+            w.finish()
+    except BaseException:
+        # The copy is ours (created above): a full disk or an interruption must not leave a partial file that a
+        # retry would then refuse to overwrite.
+        with contextlib.suppress(OSError):
+            os.unlink(dst)
+        raise
     return {"messages": kept, "channels": len(channels), "chunks": scan.chunks, "source_was_complete": scan.complete,
             "dropped": scan.dropped(), "warnings": scan.warnings()}
 

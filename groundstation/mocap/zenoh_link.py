@@ -138,10 +138,11 @@ class SubscriberSettings:
     """This many sequence conflicts (two interleaved sequences under one source id) within a second are a fault:
     a single publisher's samples arrive in order on Zenoh's ordered links, so only a second sender that copied the
     source id produces them."""
-    handover_silence_s: float = 0.1
-    """With a key: a new authenticated publisher becomes the source once the old one has been silent this long
-    (a bridge restarted: a new entity id, its sequence from 1), s. Without a key anyone may publish, and a new
-    publisher is never taken (a second publisher is a fault)."""
+    handover_silence_s: float = 0.5
+    """With a key: a new authenticated publisher becomes the source once the old one has been silent this long (a bridge
+    restarted: a new entity id, its sequence from 1, after a second or more), s. Not shorter: a second key holder
+    took over after a 120 ms hiccup of the genuine bridge, which was then a second publisher. Without a key
+    anyone may publish, and a new publisher is never taken (a second publisher is a fault)."""
 
 
 class PoseSubscriber:

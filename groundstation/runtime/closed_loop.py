@@ -74,8 +74,10 @@ def hover_check(model: ControlModel, plan: FlightPlan) -> None:
 
 THRUST_SHARE = 0.8
 """Of the assembly's collective thrust, the share the reference may ask for (the rest stays for attitude)."""
-MAX_TILT_DEG = 45.0
-"""Largest tilt the reference's accelerations may ask of an assembly that tilts to accelerate sideways, deg."""
+TILT_SHARE = 0.75
+"""Of the controller's lean limit (``gains.max_tilt_deg``), the share the reference's accelerations may ask of an
+assembly that tilts to accelerate sideways; the rest is for the feedback (a figure-8 asking 29 deg of a 30 deg
+limit left its reference 0.5 m behind)."""
 SPEED_SHARE = 0.8
 """Of the mocap's outlier speed (``mocap.max_speed``), the share the reference may fly at: faster genuine poses
 would be rejected as jumps."""
@@ -93,11 +95,11 @@ def volume_check(plan: FlightPlan, volume: FlightVolume) -> None:
                              f"{list(volume.lower)}..{list(volume.upper)} (the geofence less 0.2 m)")
 
 
-def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float) -> None:
+def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float, max_tilt_deg: float) -> None:
     """The plan's speed and acceleration, from its analytic bounds, within what the mocap gate and the assembly
     allow: speed below ``SPEED_SHARE`` of ``max_speed``; collective thrust for gravity plus the largest
-    acceleration below ``THRUST_SHARE`` of the assembly's; the tilt that acceleration asks below ``MAX_TILT_DEG``.
-    """
+    acceleration below ``THRUST_SHARE`` of the assembly's; the tilt the track's acceleration asks below
+    ``TILT_SHARE`` of the controller's ``max_tilt_deg``."""
     b = plan.bounds()
     issues = []
     if b.speed > SPEED_SHARE * max_speed:
@@ -108,9 +110,11 @@ def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float) -> N
     if need > THRUST_SHARE * thrust:
         issues.append(f"it accelerates up to {b.accel:.3g} m/s^2: {need:.3g} N of thrust, above "
                       f"{THRUST_SHARE:g} x the assembly's {thrust:.3g} N")
-    tilt = np.degrees(np.arctan2(b.accel, GRAVITY))
-    if tilt > MAX_TILT_DEG:
-        issues.append(f"its {b.accel:.3g} m/s^2 asks for {tilt:.0f} deg of tilt, above {MAX_TILT_DEG:g} deg")
+    sideways = plan.track.bounds().accel  # the take-off's and landing's vertical ramps ask for thrust, not tilt
+    tilt = np.degrees(np.arctan2(sideways, GRAVITY))
+    if tilt > TILT_SHARE * max_tilt_deg:
+        issues.append(f"its {sideways:.3g} m/s^2 asks for {tilt:.0f} deg of tilt, above {TILT_SHARE:g} x "
+                      f"gains.max_tilt_deg = {TILT_SHARE * max_tilt_deg:g} deg")
     if issues:
         raise PreflightError("the trajectory is beyond the assembly: " + "; ".join(issues))
 
@@ -126,7 +130,7 @@ def fly_simulated(assembly: Assembly, plan: FlightPlan, backend: SimulatedBacken
     model = ControlModel.from_assembly(assembly)
     hover_check(model, plan)
     volume_check(plan, volume or FlightVolume())
-    dynamics_check(model, plan, max_speed=np.inf)
+    dynamics_check(model, plan, max_speed=np.inf, max_tilt_deg=(gains or Gains()).max_tilt_deg)
     report = backend.preflight()
     if not report.ok:
         raise PreflightError("backend preflight failed: " + "; ".join(report.issues))

@@ -285,6 +285,12 @@ LANDING_DEPTH = 0.02
 """A landing aims this far below the ground, m: the touchdown's last thrust presses the assembly down."""
 DISTURBANCE_HOLD_S = 0.1
 """How long the disturbance must stay beyond ``max_disturbance_mps2`` (a shove's lasts a tenth of a second), s."""
+LANDED_HEIGHT_M = 0.15
+"""At the end of a landing the estimate must be this close above the ground it took off from to count as landed, m
+(a landing aims 2-15 cm below it; the estimate of a blind one is held at it)."""
+DISTURBANCE_LANDING_S = 0.6
+"""A landing begun (or under way) while the disturbance is beyond its bound stops the motors once it has lasted this
+long, s."""
 NEAR_GROUND_M = 0.3
 """An estimate this close above the ground has nothing to land from, m."""
 TURN_RATE_MAX_GAP_S = 0.05
@@ -520,7 +526,11 @@ class Flight:
             return False
         unmoved = self._unmoved_by_thrust(t)
         if unmoved:
-            if state.position[2] - float(self.plan.ground[2]) < NEAR_GROUND_M:
+            # Near the ground there is nothing to land from. Higher up, a landing; if the landing does not end it
+            # (its poses still disown the thrust: another body is measured), the motors stop: landing by the
+            # clock on poses of another body "landed" a decoy while the assembly climbed to 10 m.
+            if state.position[2] - float(self.plan.ground[2]) < NEAR_GROUND_M or (
+                    self.phase == Phase.LANDING and t - self._disturbed_since > DISTURBANCE_LANDING_S):
                 self._emergency(t, unmoved)
                 return False
             if self.phase.airborne:
@@ -536,14 +546,14 @@ class Flight:
         if self._landing is not None:
             t_land, landing, _ = self._landing
             if t - t_land >= landing.duration:
-                self._finish(t)
+                self._landed_or_not(t, state)
                 return False
             reference = self._landing_reference
             sp = reference(t)
         else:
             phase = self.plan.phase_at(t)
             if phase == Phase.DONE:
-                self._finish(t)
+                self._landed_or_not(t, state)
                 return False
             self._set_phase(t, phase)
             reference = self.plan
@@ -575,7 +585,8 @@ class Flight:
         if t - self._disturbed_since < DISTURBANCE_HOLD_S:
             return ""
         return (f"the assembly does not move as its thrust says ({d:.1f} m/s^2 unexplained for "
-                f"{(t - self._disturbed_since) * 1e3:.0f} ms): tied down, or mocap.body names another body")
+                f"{(t - self._disturbed_since) * 1e3:.0f} ms): tied down, pushed (a cable, a strong wind), or "
+                f"mocap.body names another body")
 
     def _turn_rate(self, t: float, sp: Setpoint, source) -> np.ndarray:
         """The body rate at which the reference's attitude target turns (:func:`reference_attitude`), rad/s: from
@@ -636,6 +647,17 @@ class Flight:
             modules = [{"command_frac_umax": np.zeros(4), "applied_frac_umax": a} for a in applied]
             self.log.record("/control", {"t_s": t, "phase": self.phase, "modules": modules, "motors_off": True},
                             self._log_time(t))
+
+    def _landed_or_not(self, t: float, state: RigidState) -> None:
+        """The landing's time is up: landed (:meth:`_finish`) if the estimate is on the ground, else the motors stop
+        and the log says where it was (a landing on the poses of another body ended 1 m up by the estimate, and
+        was reported as landed)."""
+        height = float(state.position[2] - self.plan.ground[2])
+        if height > LANDED_HEIGHT_M:
+            self._emergency(t, f"the landing's time ran out {height:.2f} m above the ground (by the estimate): "
+                               f"motors off")
+        else:
+            self._finish(t)
 
     def _finish(self, t: float) -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)

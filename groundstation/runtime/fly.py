@@ -106,7 +106,9 @@ class Faults:
     """The virtual mocap publishes its last pose again and again, freshly stamped."""
     mocap_decoy: bool = False
     """The virtual mocap measures another body, resting where the assembly stood (``mocap.body`` naming the wrong
-    one), with its noise and stamps."""
+    one), with its noise and stamps..."""
+    mocap_decoy_climb_mps: float = 0.0
+    """...rising at this rate meanwhile, m/s."""
     mocap_restarts: int = 0
     """Each increase restarts the virtual mocap's publisher: a new one (a new entity id, its sequence from 1), as a
     restarted bridge (pause it meanwhile with ``mocap_paused``: a restart takes a while)."""
@@ -288,7 +290,7 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
     hover_check(model, plan)
     try:
         volume_check(plan, volume)
-        dynamics_check(model, plan, cfg.mocap.max_speed)
+        dynamics_check(model, plan, cfg.mocap.max_speed, cfg.gains.max_tilt_deg)
     except PreflightError as exc:  # bad input: the trajectory section asks for what cannot be flown
         raise ConfigError(str(exc), path=src, key="trajectory") from None
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
@@ -589,14 +591,17 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, to_log: Callable[[fl
 LANDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGTSTP, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
                    signal.SIGUSR2, signal.SIGALRM)
 """Signals a flight lands on. By default each of the last four ends the process (Ctrl-\\ dumps core): in flight,
-the modules' watchdogs cut the motors and the assembly falls. Here they are SIGTERM."""
+the modules' watchdogs cut the motors and the assembly falls."""
+NEVER_A_STOP = (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2, signal.SIGALRM)
+"""Signals that land but never stop the motors when repeated: no operator sends them twice to ask for a stop (a hang-up
+can come twice; tools send the others repeatedly)."""
 
 
 def _install_signals(requests: Requests, started: threading.Event):
     """First SIGINT/SIGTERM/SIGTSTP/SIGHUP (or another of :data:`LANDING_SIGNALS`): land (before the loop starts: end
-    the flight unarmed, at the next check). A second one but SIGHUP: stop the motors; before the loop starts,
-    nothing is armed, so it also interrupts whatever the flight waits for (a link that does not open). The
-    signal's name goes into the reason. Returns a function restoring the old handlers.
+    the flight unarmed, at the next check). A second one (not of :data:`NEVER_A_STOP`): stop the motors; before
+    the loop starts, nothing is armed, so it also interrupts whatever the flight waits for (a link that does not
+    open). The signal's name goes into the reason. Returns a function restoring the old handlers.
 
     * SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process, rotors on.
       It never escalates to a stop, nor does a SIGTERM after it: one hang-up can deliver two (the kernel's to the
@@ -616,6 +621,8 @@ def _install_signals(requests: Requests, started: threading.Event):
         hung_up = requests.land.is_set() and requests.source == "SIGHUP"
         if hung_up and signum not in (signal.SIGINT, signal.SIGTSTP):
             return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on
+        if requests.land.is_set() and signum in NEVER_A_STOP:
+            return  # the landing goes on: repeated by a tool (log rotation, a timer), not asked by an operator
         requests.source = signal.Signals(signum).name
         if requests.land.is_set() and signum != signal.SIGHUP:
             requests.stop.set()

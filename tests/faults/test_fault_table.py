@@ -67,6 +67,9 @@ BAD_INPUTS = [
     ("mocap_body_stats", {'body = "assembly"': 'body = "stats"'}, (),
      "mocap.body: 'stats' is the name of the log's /mocap/stats channel"),
     ("mocap_key_prefix_wildcard", {'key_prefix = "mocap"': 'key_prefix = "mocap/**"'}, (), "mocap.key_prefix"),
+    ("figure8_leaning_more_than_the_controller", {"period = 8.0": "period = 3.0"}, (),
+     "trajectory: the trajectory is beyond the assembly: its 5.95 m/s^2 asks for 31 deg of tilt, above 0.75 x "
+     "gains.max_tilt_deg = 22.5 deg"),
     ("mocap_key_prefix_70000_characters", {'key_prefix = "mocap"': f'key_prefix = "{"m" * 70000}"'}, (),
      "mocap.key_prefix: must be at most 100 characters, not 70000"),
     ("negative_mocap_timeout", {"mocap_timeout_s = 0.25": "mocap_timeout_s = -1"}, (), "mocap_timeout_s"),
@@ -212,7 +215,7 @@ def f_tied_down(cli, tmp_path):
               faults=faults)
     assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
         res.reason
-    assert res.reason.endswith("tied down, or mocap.body names another body")
+    assert res.reason.endswith("tied down, pushed (a cable, a strong wind), or mocap.body names another body")
     assert not res.nominal and res.metrics.simulated_s < 2.0  # during the take-off, not after the plan
 
 
@@ -226,6 +229,23 @@ def f_mocap_decoy_body(cli, tmp_path):
     log = tmp_path / "decoy.mcap"
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7543"), duration=4.0, log_path=log,
               faults=Faults(mocap_decoy=True))
+    assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
+        res.reason
+    _, _, _, motors = read_log(log)
+    heights = [m["truth"]["position_m"][2] - motors[0][1]["truth"]["position_m"][2] for _, m in motors if "truth" in m]
+    assert max(heights) < 1.0, max(heights)
+
+
+@lying_mocap("mocap.body names another body that rises 0.33 m/s from the moment the assembly arms (dry run)",
+             "motors off below 1 m, the reason naming what the poses say against the thrust (before, a landing by the "
+             "clock on the decoy's poses 'landed' 1 m up while the assembly climbed to 10 m), exit 1")
+def f_mocap_decoy_climbing(cli, tmp_path):
+    from groundstation.runtime.fly import Faults
+
+    log = tmp_path / "climbing.mcap"
+    faults = Faults(mocap_decoy=True)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7545"), duration=4.0, log_path=log, faults=faults,
+              on_period=lambda t: setattr(faults, "mocap_decoy_climb_mps", 0.33))
     assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
         res.reason
     _, _, _, motors = read_log(log)
