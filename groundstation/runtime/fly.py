@@ -592,6 +592,8 @@ LANDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGTSTP, signal.SIGHUP,
                    signal.SIGUSR2, signal.SIGALRM)
 """Signals a flight lands on. By default each of the last four ends the process (Ctrl-\\ dumps core): in flight,
 the modules' watchdogs cut the motors and the assembly falls."""
+TOOL_SIGNALS = ("SIGUSR1", "SIGUSR2", "SIGALRM")
+"""Signals tools send (log rotation, timers), not operators."""
 NEVER_A_STOP = (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2, signal.SIGALRM)
 """Signals that land but never stop the motors when repeated: no operator sends them twice to ask for a stop (a hang-up
 can come twice; tools send the others repeatedly)."""
@@ -623,8 +625,10 @@ def _install_signals(requests: Requests, started: threading.Event):
             return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on
         if requests.land.is_set() and signum in NEVER_A_STOP:
             return  # the landing goes on: repeated by a tool (log rotation, a timer), not asked by an operator
+        # A landing a tool's signal began was not the operator's first request: their first Ctrl-C only lands.
+        by_a_tool = requests.source in TOOL_SIGNALS
         requests.source = signal.Signals(signum).name
-        if requests.land.is_set() and signum != signal.SIGHUP:
+        if requests.land.is_set() and signum != signal.SIGHUP and not by_a_tool:
             requests.stop.set()
             if not started.is_set():
                 raise KeyboardInterrupt

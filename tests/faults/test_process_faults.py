@@ -207,11 +207,13 @@ def f_sigquit_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGQUIT], 7673, signal.SIGQUIT), signal.SIGQUIT)
 
 
-@process_fault("SIGUSR1 twice in flight, 0.3 s apart (a tool's kill -USR1, a log rotation; SIGUSR2 and SIGALRM alike)",
+@process_fault("SIGUSR1 twice in flight, then one Ctrl-C, 0.3 s apart (a tool's kill -USR1, a log rotation; SIGUSR2 "
+               "and SIGALRM alike)",
                "a landing (by default it ends the process and the assembly falls), never a stop: tools repeat it, "
-               "operators do not; exit 0")
-def f_sigusr1_twice_in_flight(cli, tmp_path):
-    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGUSR1] * 2, 7674, signal.SIGUSR1), signal.SIGUSR1)
+               "and the operator's first Ctrl-C after it is their first request; exit 0")
+def f_sigusr1_twice_then_ctrl_c_in_flight(cli, tmp_path):
+    signals = [signal.SIGUSR1, signal.SIGUSR1, signal.SIGINT]
+    _landed(*_signalled_in_flight(cli, tmp_path, signals, 7674, signal.SIGUSR1), signal.SIGUSR1)
 
 
 @process_fault("fly --json with its stdout on a full device (/dev/full)",
