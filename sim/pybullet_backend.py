@@ -103,6 +103,8 @@ class PyBulletBackend(BackendBase):
         """Set False to inject a link loss (the flight must stop the motors)."""
         self.failed_gyro: int | None = None
         """Set to a module's index to inject a failed IMU: its gyro reads full scale about the module's x axis."""
+        self.stuck_gyros: float | None = None
+        """Every gyro reads this rate about each body axis, rad/s, unchanging (NaN: not a number)."""
         self.push: tuple[float, float, float] | None = None
         """A force on the body's centre, world frame, N (fault injection: a shove, a gust)."""
         self._tie: int | None = None
@@ -162,6 +164,9 @@ class PyBulletBackend(BackendBase):
         rates = np.tile(gyro, (self.assembly.n, 1))  # one rigid body: every module measures its rate
         if self.failed_gyro is not None:
             rates[self.failed_gyro] = self.assembly.module_rotations[self.failed_gyro] @ (GYRO_FULL_SCALE, 0.0, 0.0)
+            gyro = rates.mean(axis=0)
+        if self.stuck_gyros is not None:
+            rates[:] = self.stuck_gyros
             gyro = rates.mean(axis=0)
         return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
                          gyro=gyro, module_gyros=rates)

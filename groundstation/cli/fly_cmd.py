@@ -115,8 +115,10 @@ def _report(flight: str, result, as_json: bool) -> int:
     """Print the flight's summary (stdout) and what went wrong (stderr); the exit status."""
     from groundstation.runtime.flight import operator_landing
 
+    # The log's own failure is in the summary: a flight that landed as planned while its log writer hung exits 1,
+    # and a script reading only the JSON must see why.
     summary = {"phase": result.phase, "reason": result.reason, "degraded": list(result.degraded),
-               "log": str(result.log_path), **asdict(result.metrics)}
+               "log": str(result.log_path), "log_error": result.log_error, **asdict(result.metrics)}
     if as_json:
         click.echo(json.dumps(json_safe(summary)))
     else:
@@ -177,8 +179,12 @@ def recover_command(src: str, dst: str) -> int:
     for line in counts["warnings"]:
         click.echo(f"groundstation: warning: {src}: {line}", err=True)
     click.echo(json.dumps(counts))
+    if counts["messages"] == 0:  # a copy of nothing is no recovered log: none is left to be taken for one
+        Path(out).unlink()
+        click.echo(f"groundstation: {src}: no intact message to recover; {out} not written", err=True)
+        return 1
     click.echo(f"recovered: {out}", err=True)
-    return 0 if counts["messages"] > 0 else 1
+    return 0
 
 
 @click.command("mocap-bridge")

@@ -122,6 +122,12 @@ class EstimatorSettings:
     rates, not a tumble's. It opens the attitude gate to the next poses (after 100 ms: 6 sigma = 12 deg) and, with
     the mocap gone too, feeds the blind landing's position uncertainty (at 2 rad/s that passed its 0.5 m bound
     0.39 s after a peer died, ahead of the link timeout that names the lost modules)."""
+    lost_rate_walk: float = 3.0
+    """With no gyro usable (:meth:`RigidBodyFilter.predict` given NaN), the bias state becomes the body rate the
+    poses show (the gyro read as zero, the rate is minus the "bias"): its random walk is then the body's angular
+    acceleration, rad/s/sqrt(s). The attitude becomes a constant-rate tracker of the poses, whose rate has less lag
+    than the poses' differences over ``POSE_RATE_WINDOW_S`` (flown on, those let the V's attitude loop swing to
+    77 deg in a landing)."""
     inconsistent_s: float = 0.05
     """Measurements rejected over this long on end are a fault, s (five samples at 100 Hz)."""
     history_s: float = 0.15
@@ -150,6 +156,9 @@ class Estimate:
     """(3,) acceleration the model misses, world frame, m/s^2."""
 
 
+LOST_ATTITUDE_SIGMA = 0.5
+"""Std of the attitude when the gyros are lost, rad (:meth:`RigidBodyFilter.predict`): the next pose is taken
+whole."""
 POSE_RATE_WINDOW_S = 0.05
 """Span of the poses :meth:`RigidBodyFilter.pose_rate` differentiates, s."""
 _IDENTITY: Mat3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -219,6 +228,8 @@ class RigidBodyFilter:
         self._r_gyro: Mat3 = _IDENTITY
         """Attitude ``gyro_delay`` earlier: where the gyros have got to."""
         self._b: Vec3 = (0.0, 0.0, 0.0)
+        self._lost: tuple[Vec3, bool] | None = None
+        """While no gyro is usable: (the bias before, whether a pose has been fused since); None otherwise."""
         self._pt = [0.0] * 6
         """Translation covariance per axis: pp, pv, pd, vv, vd, dd."""
         self._pa = [0.0] * 3
@@ -246,6 +257,8 @@ class RigidBodyFilter:
         """The fused measurements of the last ``POSE_RATE_WINDOW_S`` (:meth:`pose_rate`)."""
         self._rejecting_since: float | None = None
         """Capture time of the first measurement of the current run of rejections."""
+        self._attitude_only = False
+        """The run of rejections since ``_rejecting_since`` was for the attitude alone (its positions agreed)."""
         self._pt_plain: list[float] | None = None
         """While rejections inflate the translation covariance (since the last fused measurement): the covariance
         as it would be without them, propagated alike. A fault restores it; dividing by the factor instead also
@@ -265,12 +278,20 @@ class RigidBodyFilter:
         the reading arrived, s (beyond ``gyro_stale_s`` it is stale)."""
         self._state = None
         g = None if gyro is None else np.asarray(gyro, float).tolist()
-        # A reading that is not a rate (a module's NaN) is no reading: the attitude is held, the mocap corrects it.
-        g = tuple(g) if g is not None and len(g) == 3 and all(map(math.isfinite, g)) else None
+        # A reading that is not a rate (no gyro usable: :class:`GyroAgreement`) is a stale one, as old as the last
+        # usable reading: the attitude is held and its uncertainty grows, so the poses correct it.
         unseen = gyro_age - self.settings.gyro_stale_s if g is not None else 0.0
+        usable = g is not None and len(g) == 3 and all(map(math.isfinite, g))
+        g = tuple(g) if usable else None
         if unseen != unseen:  # an age that is not a number: as old as can be
             unseen = math.inf
-        self._gyro = None if unseen > 0.0 else g  # never heard (an infinite age): none streamed
+        lost = gyro is not None and not usable and unseen < math.inf
+        if lost != (self._lost is not None):
+            self._lose_gyros() if lost else self._regain_gyros()
+        if lost:
+            # The gyro reads zero: the rate is minus the "bias", which the poses estimate (``lost_rate_walk``).
+            g, unseen = (0.0, 0.0, 0.0), (unseen if not self._lost[1] else 0.0)
+        self._gyro = None if unseen > 0.0 and not lost else g  # never heard (an infinite age): none streamed
         if self.initialized and self._t is not None and t > self._t:
             if 0.0 < unseen < math.inf:
                 self._unseen_turn(max(unseen - (t - self._t), 0.0), unseen)
@@ -279,6 +300,25 @@ class RigidBodyFilter:
             self._remember()
         elif self._t is None or t > self._t:
             self._t = t
+
+    def _lose_gyros(self) -> None:
+        """No gyro usable from now: the bias state carries minus the body rate, starting from the poses' (or the
+        last reading's), free to follow it."""
+        rate = self._pose_rate() or self._rate() or (0.0, 0.0, 0.0)
+        self._lost = (self._b, False)
+        self._b = (-rate[0], -rate[1], -rate[2])
+        self._qb = self.settings.lost_rate_walk ** 2
+        # The attitude: what the failed readings made of it is unknown (stuck at 5 rad/s for the 40 ms it takes to
+        # see a freeze, it turned 11 deg away, beyond the gate, and the V flipped): the next pose sets it.
+        tt, _, bb = self._pa
+        self._pa = [max(tt, LOST_ATTITUDE_SIGMA ** 2), 0.0, max(bb, self.settings.unseen_rate ** 2)]
+
+    def _regain_gyros(self) -> None:
+        """A usable reading again: the bias is the one the gyros had."""
+        s = self.settings
+        self._b, self._lost = self._lost[0], None
+        self._qb = s.gyro_bias_walk ** 2
+        self._pa = [self._pa[0], 0.0, s.initial_bias ** 2]
 
     def set_ground(self, z: float) -> None:
         """From now on the estimate stays above ``z``, the resting COM height, m. For flying blind: with mocap the
@@ -357,7 +397,7 @@ class RigidBodyFilter:
         position = np.asarray(m.position, float).tolist()
         rotation = np.asarray(m.rotation, float).ravel().tolist()
         if not (math.isfinite(m.t) and all(map(math.isfinite, position)) and all(map(math.isfinite, rotation))):
-            return self._reject(m.t, "not finite")
+            return self._reject(m.t, "not finite", attitude=False)
         if not self.initialized:
             self._start(m, position, rotation)
             return True
@@ -372,7 +412,7 @@ class RigidBodyFilter:
         if last is not None and m.t > last[0] and position == last[1] and rotation == last[2]:
             # A camera system measures with noise: the same pose twice to the last bit, newly timed, is a stream
             # that froze (a lost body held, a stuck bridge), whatever the body does meanwhile.
-            return self._reject(m.t, "the same pose again, to the last bit: a frozen stream")
+            return self._reject(m.t, "the same pose again, to the last bit: a frozen stream", attitude=False)
         at = self._at(m.t)
         if at is None:  # older than anything the estimate remembers: news of no use, not a wrong pose
             self.late += 1
@@ -392,7 +432,7 @@ class RigidBodyFilter:
                 if self._pt_plain is None:
                     self._pt_plain = list(self._pt)
                 self._pt = _inflated(self._pt, s.rejection_inflation)
-            return self._reject(m.t, f"position {miss * 100:.1f} cm off the estimate")
+            return self._reject(m.t, f"position {miss * 100:.1f} cm off the estimate", attitude=False)
         turning = self._rate()
         if turning is not None and m.t > tm:
             tau = m.t - tm
@@ -414,6 +454,8 @@ class RigidBodyFilter:
                                  mat3_mul(r_m, mat3_from_rotvec(*ct)), a])
         self._rejecting_since = None
         self._pt_plain = None
+        if self._lost is not None:
+            self._lost = (self._lost[0], True)  # the poses have the attitude again: no more unseen turning
         self.fused += 1
         self.last_fused_t = max(self.last_fused_t, m.t)
         self._keep_fused(m)
@@ -499,12 +541,16 @@ class RigidBodyFilter:
         self._state = None
         return cp, cv, cd, ct
 
-    def _reject(self, t: float, why: str) -> bool:
+    def _reject(self, t: float, why: str, attitude: bool = True) -> bool:
+        """Count a rejected measurement (``attitude``: rejected for its attitude alone) and latch the fault of a
+        run of them."""
         self.rejected += 1
         self.last_rejection = why
         if self._rejecting_since is None:
-            self._rejecting_since = t
-        elif t - self._rejecting_since >= self.settings.inconsistent_s and not self._fault:
+            self._rejecting_since, self._attitude_only = t, attitude
+        else:
+            self._attitude_only = self._attitude_only and attitude
+        if t - self._rejecting_since >= self.settings.inconsistent_s and not self._fault:
             self._fault = (f"every pose rejected for {(t - self._rejecting_since) * 1e3:.0f} ms (last: {why}): "
                            f"frozen, swapped, forged or broken")
             # The poses were wrong, not the model: the inflation that made room for a model error goes. Kept, it
@@ -513,6 +559,13 @@ class RigidBodyFilter:
             if self._pt_plain is not None:
                 self._pt, self._pt_plain = self._pt_plain, None
         return False
+
+    def gyros_lost(self) -> None:
+        """No gyro is usable any more (every one failed alike: :class:`GyroAgreement`). A fault latched on poses
+        rejected for their attitude alone was the gyros' doing (stuck, they held or turned the estimate away from
+        the poses): it is taken back, and the attitude's uncertainty, growing without a rate, lets the poses in."""
+        if self._fault and self._attitude_only:
+            self._fault, self._rejecting_since = "", None
 
     # -- outputs ----------------------------------------------------------------------------------------------------
     @property

@@ -12,6 +12,14 @@ latches, and the module is left out of the body rate from then on: with three mo
 from the others, with two the one farther from the rate the mocap poses show
 (:meth:`RigidBodyFilter.pose_rate`; without poses, neither). Readings that are not numbers never enter the body
 rate, nor stale ones while a fresh one is there (a module isolated after a fault sends none: its last reading ages).
+
+A reading that is not a number, or one repeated to the last bit for ``frozen_s`` while its module's packets keep
+arriving (a gyro's noise changes every reading: a repeat is a stuck sensor or a stuck buffer), is *unusable*: it
+is a fault at once, and the module is left out. When no module has a usable reading (every gyro failed alike, or
+the only one), the fault says so and :meth:`GyroAgreement.rate` returns no rate, NaN, with the age of the last
+usable one: the estimator then takes the attitude from the poses. Agreeing with each other, such readings had
+been flown on: stuck at 0 or at 1 rad/s, the estimate held or turned while the poses were rejected as "off the
+gyros' prediction", and the V landed blind on that attitude and came to rest upside down.
 """
 
 from __future__ import annotations
@@ -37,11 +45,15 @@ class GyroAgreementSettings:
     have caused; a disagreement back within the tolerance starts the count again)."""
     max_step: float = 0.01
     """Longest time one reading counts for, s (a stalled loop's gap is not a disagreement that lasted)."""
+    frozen_s: float = 0.04
+    """A module's reading the same to the last bit for this long, while fresh, is frozen, s: four readings at
+    the 100 Hz of a Crazyflie's state packets (a real gyro's noise, 0.1 deg/s, changes every float32 reading);
+    short of the estimator's ``inconsistent_s`` after the poses it turns away start being rejected."""
 
 
 class GyroAgreement:
     """Feed :meth:`rate` every period with the modules' body-frame gyros; :attr:`fault` names a latched
-    disagreement ("" while there is none)."""
+    disagreement or an unusable reading ("" while there is none)."""
 
     def __init__(self, settings: GyroAgreementSettings | None = None) -> None:
         self.settings = settings or GyroAgreementSettings()
@@ -50,6 +62,8 @@ class GyroAgreement:
         """The module left out of the body rate after a fault."""
         self.worst = 0.0
         """The largest disagreement seen, rad/s."""
+        self.lost_since: float | None = None
+        """Since when no module has had a usable reading, s (None while one has)."""
         self._t: float | None = None
         self._since: float | None = None
         self._excess = 0.0
@@ -57,54 +71,110 @@ class GyroAgreement:
         """(t, readings) of the last ``delay_spread``."""
         self._judged: list[int] | None = None
         """The modules judged last (None: all): :attr:`_recent` compares readings of the same modules only."""
+        self._previous: tuple[float, list[list[float]]] | None = None
+        """(t, readings) of the previous call: what a frozen reading repeats."""
+        self._same_since: list[float | None] = []
+        """Per module: since when its reading has been the same to the last bit, s (None: it changed)."""
+        self._used_t = -math.inf
+        """When the newest reading flown on arrived, s."""
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
              referee: Callable[[], np.ndarray | None] | None = None, ages: np.ndarray | None = None,
              age: float = 0.0, stale_s: float = math.inf) -> tuple[np.ndarray, float]:
         """The body rate to fly on at ``t`` (s) and how old it is (s): ``mean`` (the backend's, of all modules,
-        ``age`` old) unless a module was left out, a reading is not a number or is stale; judges ``module_gyros``
+        ``age`` old) unless a module was left out, a reading is unusable or is stale; judges ``module_gyros``
         ((n, 3), rad/s, body frame) on the way. ``ages``: each module's reading's age, s (None or empty: all
         ``age`` old; NaN: stale); a reading older than ``stale_s`` is left out of the rate while fresher ones exist,
         and only the fresh readings are judged, against each other (two at least): a packet late by tens of ms
         during a turn is old news, not a loose IMU, and a module taken out of the flight (its age infinite) leaves
         the others judged. ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the
-        wrong one of two; asked only then (not on the control loop's every period)."""
+        wrong one of two; asked only then (not on the control loop's every period). With no usable reading: NaN,
+        and the time since the last one flown on (:attr:`lost_since`)."""
         n = len(module_gyros)
-        if n < 2:
+        if n == 0:
             return mean, age
         # In Python floats: on a few modules' readings numpy's overhead per call costs more than the arithmetic
         # (``python -m benchmarks.estimator``, 2026-12-02: 68 us a period in numpy for two modules, 10 us in floats; 82
         # and 67 us for 60).
         rates = module_gyros.tolist()
-        # A sum that is a number says that every reading is one (the common case, on every control period).
-        finite = None if math.isfinite(sum(map(sum, rates))) else np.isfinite(module_gyros).all(axis=1)
         fresh = None
         if ages is not None and len(ages) == n:
             fresh = ages <= stale_s  # NaN compares False: stale
             fresh = None if fresh.all() else fresh
+        # A sum that is a number says that every reading is one (the common case, on every control period).
+        finite = None if math.isfinite(sum(map(sum, rates))) else np.isfinite(module_gyros).all(axis=1)
+        frozen = self._frozen(t, rates, fresh)
+        usable = finite if frozen is None else (~frozen if finite is None else finite & ~frozen)
         if not self.fault:
-            if fresh is None:
-                self._judge(t, module_gyros, rates, finite, referee, None)
+            bad = None if usable is None else ~usable if fresh is None else ~usable & fresh
+            if bad is not None and bad.any():
+                self._name_unusable(t, rates, bad, usable if fresh is None else usable & fresh, finite)
+            elif n < 2:
+                pass
+            elif fresh is None:
+                self._judge(t, module_gyros, rates, referee, None)
             elif fresh.sum() >= 2:
                 index = np.flatnonzero(fresh).tolist()
-                self._judge(t, module_gyros[index], [rates[i] for i in index],
-                            None if finite is None else finite[index], referee, index)
-        if self.excluded is None and (finite is None or finite.all()) and fresh is None:
+                self._judge(t, module_gyros[index], [rates[i] for i in index], referee, index)
+        if self.excluded is None and usable is None and fresh is None:
+            self._used_t, self.lost_since = t - age, None
             return mean, age
-        keep = np.isfinite(module_gyros).all(axis=1)
+        keep = np.ones(n, dtype=bool) if usable is None else usable.copy()
         if self.excluded is not None:
             keep[self.excluded] = False
         if fresh is not None and (keep & fresh).any():
             keep &= fresh
         if not keep.any():
-            return mean, age
+            # Frozen readings were flown on until they were seen to be: the rate is unknown since they froze.
+            lost = min([self._used_t] + [since for since in self._same_since if since is not None])
+            self.lost_since = lost
+            return np.full(3, math.nan), t - lost
         used_age = age if ages is None or len(ages) != n else float(ages[keep].max())
+        self._used_t, self.lost_since = t - used_age, None
         return (mean if keep.all() else module_gyros[keep].mean(axis=0)), used_age
 
-    def _judge(self, t: float, module_gyros: np.ndarray, rates: list[list[float]], finite: np.ndarray | None,
+    def _frozen(self, t: float, rates: list[list[float]], fresh: np.ndarray | None) -> np.ndarray | None:
+        """Which modules' readings have been the same to the last bit, while fresh, for ``frozen_s`` (None: none)."""
+        previous, self._previous = self._previous, (t, rates)
+        if previous is None or len(previous[1]) != len(rates):
+            self._same_since = [None] * len(rates)
+            return None
+        t_before, before = previous
+        same, limit, out = self._same_since, self.settings.frozen_s, None
+        for i, (now, then) in enumerate(zip(rates, before, strict=True)):
+            if now != then or (fresh is not None and not fresh[i]):  # NaN differs from NaN: not "frozen"
+                same[i] = None
+                continue
+            if same[i] is None:
+                same[i] = t_before
+            if t - same[i] >= limit:
+                if out is None:
+                    out = np.zeros(len(rates), dtype=bool)
+                out[i] = True
+        return out
+
+    def _name_unusable(self, t: float, rates: list[list[float]], bad: np.ndarray, good: np.ndarray,
+                       finite: np.ndarray | None) -> None:
+        """Latch the fault of the unusable readings ``bad`` (``good``: the usable ones judged)."""
+        def what(i: int) -> str:
+            if finite is not None and not finite[i]:
+                return "is not a number"
+            reading = ", ".join(f"{math.degrees(x):.1f}" for x in rates[i])
+            return f"has read ({reading}) deg/s to the last bit for {(t - self._same_since[i]) * 1e3:.0f} ms: frozen"
+
+        first = int(np.flatnonzero(bad)[0])
+        if not good.any():
+            whose = "the gyro" if len(rates) == 1 else "every module's gyro" if bad.all() else \
+                "every fresh module's gyro"
+            self.fault = f"{whose} {what(first)}: no body rate, the attitude from the poses alone"
+            return
+        self.excluded = first
+        self.fault = f"module {first}'s gyro {what(first)}: a failed IMU, left out of the body rate"
+
+    def _judge(self, t: float, module_gyros: np.ndarray, rates: list[list[float]],
                referee: Callable[[], np.ndarray | None] | None, index: list[int] | None) -> None:
-        """``rates``: ``module_gyros`` as lists; ``finite``: which are numbers (None: all are); ``index``: the
-        modules these are (None: all, in order)."""
+        """``rates``: ``module_gyros`` (every one a number) as lists; ``index``: the modules these are (None: all,
+        in order)."""
         s = self.settings
         if index != self._judged:  # other modules than last time: their history does not compare
             self._judged = index
@@ -112,22 +182,17 @@ class GyroAgreement:
         dt = 0.0 if self._t is None else min(max(t - self._t, 0.0), s.max_step)
         self._t = t
         n = len(module_gyros)
-        broken = finite is not None and not finite.all()
-        if broken:  # a reading that is not a number agrees with nothing
-            off = [0.0 if ok else math.inf for ok in finite.tolist()]
-            bx, by, bz = module_gyros[finite].mean(axis=0).tolist() if finite.any() else (0.0, 0.0, 0.0)
-        else:
-            self._remember(t, rates)
-            tx, ty, tz = map(sum, zip(*rates, strict=True))
-            k = n - 1
-            off = []  # squared: only the largest needs its root
-            for x, y, z in rates:  # each module against its counterpart, the mean of the others
-                dx, dy, dz = x - (tx - x) / k, y - (ty - y) / k, z - (tz - z) / k
-                off.append(dx * dx + dy * dy + dz * dz)
-            bx, by, bz = tx / n, ty / n, tz / n
+        self._remember(t, rates)
+        tx, ty, tz = map(sum, zip(*rates, strict=True))
+        k = n - 1
+        off = []  # squared: only the largest needs its root
+        for x, y, z in rates:  # each module against its counterpart, the mean of the others
+            dx, dy, dz = x - (tx - x) / k, y - (ty - y) / k, z - (tz - z) / k
+            off.append(dx * dx + dy * dy + dz * dz)
+        bx, by, bz = tx / n, ty / n, tz / n
         off_i = math.sqrt(max(off))
         tolerance = s.floor + s.relative * math.sqrt(bx * bx + by * by + bz * bz)
-        if off_i > tolerance and not broken:  # what the rate changed by is wanted only when the rest is not enough
+        if off_i > tolerance:  # what the rate changed by is wanted only when the rest is not enough
             tolerance += self._change()
         self.worst = max(self.worst, off_i)
         if off_i <= tolerance:
@@ -135,16 +200,16 @@ class GyroAgreement:
             return
         if self._since is None:
             self._since = t
-        self._excess += (off_i - tolerance) * dt if math.isfinite(off_i) else math.inf
+        self._excess += (off_i - tolerance) * dt
         if self._excess < s.angle_budget:
             return
         i = off.index(max(off))
-        size = "not a number" if not math.isfinite(off_i) else f"{math.degrees(off_i):.0f} deg/s"
+        size = f"{math.degrees(off_i):.0f} deg/s"
         lasted = f"{(t - self._since) * 1e3:.0f} ms"
-        poses = referee() if n == 2 and referee is not None and not broken else None
+        poses = referee() if n == 2 and referee is not None else None
         if poses is not None:
             i = int(np.argmax(np.sqrt(((module_gyros - poses) ** 2).sum(axis=1))))
-        elif n == 2 and not broken:
+        elif n == 2:
             a, b = index or (0, 1)
             self.fault = (f"the gyros of modules {a} and {b} disagree by {size} for {lasted} (tolerated "
                           f"{math.degrees(tolerance):.0f}): a failed or loose IMU; no poses to tell which")

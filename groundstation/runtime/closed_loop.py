@@ -23,7 +23,7 @@ from groundstation.control.phase import Phase
 from groundstation.control.trajectory import FlightPlan
 from groundstation.errors import PreflightError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
-from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
+from groundstation.runtime.flight import MAX_LANDING_MPS, FailsafePolicy, Flight, PhysicsPoseSource
 from groundstation.runtime.loop import LoopStats, SimClock
 from groundstation.runtime.metrics import FlightSummary
 
@@ -115,6 +115,11 @@ def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float, max_
     if tilt > TILT_SHARE * max_tilt_deg:
         issues.append(f"its {sideways:.3g} m/s^2 asks for {tilt:.0f} deg of tilt, above {TILT_SHARE:g} x "
                       f"gains.max_tilt_deg = {TILT_SHARE * max_tilt_deg:g} deg")
+    drop = float(plan(plan.phases[-1][1]).position[2] - plan.ground[2])
+    if drop / plan.landing_s > MAX_LANDING_MPS:
+        issues.append(f"its landing descends {drop:.3g} m in trajectory.landing_s = {plan.landing_s:g} s, faster than "
+                      f"{MAX_LANDING_MPS:g} m/s on average (it touches down too hard): at least "
+                      f"{drop / MAX_LANDING_MPS:.2f} s")
     if issues:
         raise PreflightError("the trajectory is beyond the assembly: " + "; ".join(issues))
 

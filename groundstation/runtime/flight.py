@@ -57,6 +57,15 @@ from groundstation.runtime.loop import (
 )
 from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 
+MAX_LANDING_MPS = 0.8
+"""The fastest mean descent of the plan's landing (its height over ``trajectory.landing_s``), m/s: the quintic
+peaks at 1.875 times that and the position loop trails it. Measured in the dry run, the toy V's 0.76 m with 18 %
+more mass than its model says: in 0.86 s (0.89 m/s) touchdown at 1.64 m/s, in 1.0 s (0.76 m/s) 1.39 m/s (0.92
+without the extra mass), in 1.3 s 0.99 m/s, in 1.7 s 0.71 m/s."""
+MAX_BLIND_DESCENT_MPS = 0.6
+"""...and of a blind landing (``failsafe.blind_descent_mps``), m/s: flown on the estimate alone, it trails more.
+Measured from 1 m: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s 1.58 m/s; at 2-5 m/s the rotors went to zero
+and it tipped 46-48 deg."""
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
 RATE_WINDOW_S = 1.0
@@ -153,7 +162,7 @@ class FailsafePolicy:
     blind_descent_mps: float = 0.5
     """A landing begun because mocap went stale descends at this rate on average, m/s (from 1 m in 2 s: the
     estimate's uncertainty grows with the cube of the time flown blind). The landing's smooth profile peaks near
-    twice that; touchdowns measured 0.6-0.8 m/s."""
+    twice that; touchdowns measured 0.6-0.8 m/s. At most :data:`MAX_BLIND_DESCENT_MPS`."""
     max_tracking_error_m: float = 0.5
     """Airborne, the measured position farther than this from the reference lands the flight: the assembly is not
     following its commands (held down, too heavy for its modules, an assembly file that is not the one flying).
@@ -301,6 +310,9 @@ after seconds without mocap (measured in the dry run: 5-8 cm high after 2 s), an
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
+GYROLESS_ATTITUDE_SHARE = 0.5
+"""Share of ``gains.attitude_hz`` flown while no gyro is usable (the landing on the poses' attitude)."""
+
 
 class Flight:
     """One flight of one assembly; :meth:`run` flies it on a clock and returns what happened."""
@@ -314,6 +326,10 @@ class Flight:
                  estimator: RigidBodyFilter | None = None) -> None:
         self.assembly, self.plan, self.backend, self.pose = assembly, plan, backend, pose
         self.gains = gains or Gains()
+        self._gains_without_gyros = replace(self.gains, attitude_hz=self.gains.attitude_hz * GYROLESS_ATTITUDE_SHARE)
+        """With no gyro usable, the rate is the poses' (:class:`~groundstation.estimation.filter.EstimatorSettings`
+        ``lost_rate_walk``): late by a sample or two, which the attitude loop at full bandwidth turned into an 8 Hz
+        swing that flipped the V."""
         self.model = ControlModel.from_assembly(assembly)
         self.alloc = allocate if allocation == "clip" else allocate_bounded
         self.estimator = estimator or RigidBodyFilter(EstimatorSettings(), self.model.mass)
@@ -362,6 +378,7 @@ class Flight:
         """(flight time s, its reference, the attitude target of the reference alone) of the previous period."""
         self._mocap_fault_named = ""
         """The kind of mocap fault last seen (its text without the counts)."""
+        self._gyro_fault_named = False
         """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
@@ -388,9 +405,11 @@ class Flight:
         now = self.pose.now()
         gyro = telemetry.gyro if telemetry.gyro.size == 3 else None
         age = telemetry.gyro_age_s
-        if gyro is not None and len(telemetry.module_gyros) > 1:
+        if gyro is not None and len(telemetry.module_gyros):
             gyro, age = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now),
                                         telemetry.module_gyro_ages_s, age, est.settings.gyro_stale_s)
+            if self.gyros.lost_since is not None:
+                est.gyros_lost()
         est.predict(now, gyro, age)
         for m in self.pose.measurements():
             est.correct(m)
@@ -498,7 +517,9 @@ class Flight:
                 # plan's, or on stale poses) goes on, blind if need be, named once per kind of fault.
                 self._begin_landing(t, state, why, blind=bool(est.fault()))
             self._mocap_fault_named = kind
-        if self.gyros.fault and self.phase.airborne and state is not None:
+        if self.gyros.fault and not self._gyro_fault_named and state is not None and \
+                (self.phase.airborne or self.phase == Phase.LANDING):
+            self._gyro_fault_named = True  # a landing under way (the plan's too) goes on, the fault named once
             self._begin_landing(t, state, f"gyro fault: {self.gyros.fault}")
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
@@ -563,7 +584,8 @@ class Flight:
                 self._begin_landing(t, state, f"not following the reference: {error:.2f} m from it > "
                                                        f"{self.policy.max_tracking_error_m:g} m")
         sp = replace(sp, omega=self._turn_rate(t, sp, "plan" if reference is self.plan else self._landing[0]))
-        out = control(state, sp, self.model, self.gains)
+        gains = self.gains if self.gyros.lost_since is None else self._gains_without_gyros
+        out = control(state, sp, self.model, gains)
         u = self.alloc(out.wrench, self.model)
         if not np.all(np.isfinite(u)):
             self._emergency(t, "non-finite motor command")

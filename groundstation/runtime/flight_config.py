@@ -28,7 +28,7 @@ from groundstation.backends.section import BackendSection, SimSection
 from groundstation.control.geometric import Gains
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.estimation.filter import EstimatorSettings
-from groundstation.runtime.flight import FailsafePolicy, QualityBounds
+from groundstation.runtime.flight import MAX_BLIND_DESCENT_MPS, FailsafePolicy, QualityBounds
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_DURATION_S = 3600.0
@@ -201,9 +201,13 @@ class GainsSection:
     """Controller gains (defaults and meaning: :class:`~groundstation.control.geometric.Gains`): bandwidths, Hz,
     and damping ratios. The loop rate bounds them (:func:`loop_rate_needed`)."""
 
-    position_hz: float = Field(Gains.position_hz, gt=0)
-    position_zeta: float = Field(Gains.position_zeta, gt=0)
-    attitude_hz: float = Field(Gains.attitude_hz, gt=0)
+    position_hz: float = Field(Gains.position_hz, ge=0.3)
+    """At least 0.3 Hz: slower, a take-off of seconds is not followed (at 1e-9 Hz one armed, and its landing time ran
+    out while it still climbed)."""
+    position_zeta: float = Field(Gains.position_zeta, ge=0.3)
+    """At least 0.3: less damped, a step overshoots by more than a third."""
+    attitude_hz: float = Field(Gains.attitude_hz, ge=1.0)
+    """At least 1 Hz: slower, the attitude cannot follow the lean the position loop asks."""
     attitude_zeta: float = Field(Gains.attitude_zeta, gt=0)
     max_tilt_deg: float = Field(Gains.max_tilt_deg, gt=0, le=60)
 
@@ -237,8 +241,9 @@ class FailsafeSection:
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
     max_position_sigma_m: float = Field(FailsafePolicy.max_position_sigma_m, gt=0, le=MAX_GEOFENCE_M)
     """Flying blind on the estimate, the motors stop beyond this position std, m."""
-    blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, gt=0, le=5)
-    """A landing begun on stale mocap descends at this rate, m/s (at most 5: faster is a fall)."""
+    blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, gt=0, le=MAX_BLIND_DESCENT_MPS)
+    """A landing begun on stale mocap descends at this rate, m/s (at most :data:`MAX_BLIND_DESCENT_MPS`: faster
+    touches down too hard)."""
     max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
     """Airborne, the measured position farther than this from the reference lands the flight, m (below the
     geofence's diagonal: :func:`bound_issues`)."""

@@ -97,8 +97,8 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_*``, ``link_lost``, ``gyro_failed``, ``tied_down`` and ``push_n`` act on the in-process simulator only; with
-    simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
+    ``mocap_*``, ``link_lost``, ``gyro_failed``, ``gyros_stuck``, ``tied_down`` and ``push_n`` act on the in-process
+    simulator only; with simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
@@ -118,6 +118,9 @@ class Faults:
     """The backend reports its link lost."""
     gyro_failed: int | None = None
     """This module's gyro reads full scale (2000 deg/s) about its x axis (a failed IMU)."""
+    gyros_stuck: float | None = None
+    """Every module's gyro reads this rate about each body axis, rad/s, the same every time (NaN: not a number):
+    the modules agree with each other, and are all wrong."""
     tied_down: bool = False
     """The assembly is fixed where it is (a forgotten tie-down, a snagged cable): the rotors spin, it stays."""
     push_n: tuple[float, float, float] | None = None
@@ -617,11 +620,13 @@ def _install_signals(requests: Requests, started: threading.Event):
     if threading.current_thread() is not threading.main_thread():
         return None
 
+    hung_up = []  # a hang-up, whenever it came: not only one that began the landing (Ctrl-C, hang-up, SIGTERM)
+
     def handler(signum, frame):
         if signum == signal.SIGHUP:
             forget_lost_terminal()  # every later write to it would fail (EIO) and end the command in a traceback
-        hung_up = requests.land.is_set() and requests.source == "SIGHUP"
-        if hung_up and signum not in (signal.SIGINT, signal.SIGTSTP):
+            hung_up.append(True)
+        if hung_up and requests.land.is_set() and signum not in (signal.SIGINT, signal.SIGTSTP):
             return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on
         if requests.land.is_set() and signum in NEVER_A_STOP:
             return  # the landing goes on: repeated by a tool (log rotation, a timer), not asked by an operator

@@ -365,3 +365,52 @@ def test_a_stale_gyro_reading_is_not_integrated_and_the_poses_take_the_attitude_
     assert in_gap < 4.0  # held after 30 ms: ~3.3 deg at most, not 11
     assert after < 0.5 and f.fault() == ""
     assert f.rejected - rejected_before <= 2  # the poses in and after the gap are fused
+
+
+def _turning_at(rate: np.ndarray):
+    """A body turning at ``rate`` (rad/s, body frame) from level, at 1 m."""
+    return lambda t: (np.array([0.0, 0.0, 1.0]), rotvec_to_matrix(rate * t))
+
+
+def test_without_gyros_the_poses_give_the_attitude_and_the_rate():
+    """The gyros lost (NaN, as :class:`GyroAgreement` hands on, with the age of the last usable reading) while the
+    body turns at 1 rad/s: the attitude follows the poses within 0.5 deg, and the rate learnt from them is the
+    true one on average (not zero, not a stuck reading's); a usable reading again brings the gyros back."""
+    rate = np.array([0.3, -0.5, 0.8])
+    truth = _turning_at(rate)
+    f = RigidBodyFilter(EstimatorSettings(attitude_noise=math.radians(0.1)), MASS)
+    lost_at = 1.0
+    gyro = lambda t: rate if t < lost_at else np.full(3, np.nan)  # noqa: E731
+    out = _run(f, 0.99, truth, gyro)
+    rng = np.random.default_rng(2)
+    for k in range(int(round(1.0 / DT))):  # the gyros lost, the age growing: predict by hand
+        t = lost_at + k * DT
+        f.predict(t, gyro(t), gyro_age=t - (lost_at - DT))
+        if k % 2 == 0:  # poses at 125 Hz
+            p, r = truth(t)
+            f.correct(PoseMeasurement(t, p, r @ rotvec_to_matrix(rng.normal(0.0, MOCAP_NOISE[1], 3))))
+        out.append((t, f.state()))
+    after = [(t, s) for t, s in out if t >= lost_at + 0.2]
+    assert max(math.degrees(rotation_angle(s.rotation, truth(t)[1])) for t, s in after) < 0.5
+    errors = np.array([s.omega - rate for _, s in after])
+    # A rate from 0.1 deg poses at 125 Hz: unbiased, and noisy (lost_rate_walk trades its noise for its lag)
+    assert np.all(np.abs(errors.mean(axis=0)) < 0.05) and np.sqrt((errors ** 2).sum(axis=1).mean()) < 0.35
+    f.predict(2.0 + DT, rate * 1.0001, gyro_age=0.0)
+    np.testing.assert_allclose(f.state().omega, rate, atol=0.03)  # the gyros' again, less the bias they had
+
+
+@pytest.mark.parametrize("why", ["attitude", "position"])
+def test_lost_gyros_take_back_a_fault_of_poses_rejected_for_their_attitude_alone(why):
+    """A gyro stuck at zero holds the estimate while the poses turn: they are rejected as off the gyros'
+    prediction and the fault latches; told the gyros are lost, the filter takes it back and fuses the poses. A
+    fault of poses whose positions were off (a swapped body) stays."""
+    rate = np.array([0.0, 3.0, 0.0])
+    truth = _turning_at(rate)
+    if why == "position":
+        truth = lambda t, _r=truth: (_r(t)[0] + [0.0, 0.0, 0.5 if t > 0.5 else 0.0], _r(t)[1])  # noqa: E731
+    f = RigidBodyFilter(EstimatorSettings(), MASS)
+    _run(f, 0.5, lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3)))
+    _run(f, 0.2, truth, t0=0.5)  # the gyros read 0 while the poses turn (or jump 0.5 m)
+    assert f.fault().startswith("every pose rejected")
+    f.gyros_lost()
+    assert (f.fault() == "") == (why == "attitude")

@@ -6,14 +6,22 @@ import pytest
 from groundstation.estimation.gyro_check import GyroAgreement
 
 DT = 0.004
+NOISE = 1e-4
+"""Gyro noise of the readings below, rad/s (a real gyro's reading changes every time: one repeated to the last
+bit is frozen)."""
+_rng = np.random.default_rng(0)
+
+
+def _noisy(rates):
+    return rates + _rng.normal(0.0, NOISE, np.shape(rates))
 
 
 def _run(agreement, rates_at, seconds=0.3, referee=None):
-    """Feed ``rates_at(t)`` ((n, 3)) every 4 ms for ``seconds``; the body rates returned."""
+    """Feed ``rates_at(t)`` ((n, 3)), with noise, every 4 ms for ``seconds``; the body rates returned."""
     out = []
     for k in range(round(seconds / DT)):
         t = k * DT
-        rates = rates_at(t)
+        rates = _noisy(rates_at(t))
         out.append(agreement.rate(t, rates, rates.mean(axis=0), None if referee is None else lambda t=t: referee(t))[0])
     return np.array(out)
 
@@ -46,7 +54,7 @@ def test_a_stalled_loop_is_not_a_disagreement_that_lasted():
     10 ms at most, not x 200 ms (2.3 deg, a fault)."""
     agreement = GyroAgreement()
     for t, second in ((0.0, 0.0), (0.004, 0.8), (0.204, 0.8), (0.208, 0.0)):
-        agreement.rate(t, np.array([[0.0, 0.0, 0.0], [0.0, second, 0.0]]), np.zeros(3))
+        agreement.rate(t, _noisy(np.array([[0.0, 0.0, 0.0], [0.0, second, 0.0]])), np.zeros(3))
     assert agreement.fault == ""
 
 
@@ -60,7 +68,7 @@ def test_a_gyro_stuck_at_full_scale_is_left_out_in_the_period_it_shows():
     k = round(0.1 / DT)  # the first period with the failed reading
     assert agreement.excluded == 1 and agreement.fault.startswith("module 1's gyro disagrees with the other's by "
                                                                   "2000 deg/s for 0 ms")
-    np.testing.assert_allclose(rates[k:], np.tile(good, (len(rates) - k, 1)))  # never flown on
+    np.testing.assert_allclose(rates[k:], np.tile(good, (len(rates) - k, 1)), atol=5 * NOISE)  # never flown on
 
 
 def test_a_gyro_stuck_while_the_body_turns_is_named_once_its_error_adds_up():
@@ -73,7 +81,7 @@ def test_a_gyro_stuck_while_the_body_turns_is_named_once_its_error_adds_up():
     assert agreement.excluded == 1
     lasted = float(agreement.fault.split(" for ")[1].split(" ms")[0])
     assert 40 <= lasted <= 60, agreement.fault
-    np.testing.assert_allclose(rates[-1], turn)
+    np.testing.assert_allclose(rates[-1], turn, atol=5 * NOISE)
 
 
 def test_two_that_disagree_without_poses_are_named_and_both_stay_in():
@@ -83,7 +91,7 @@ def test_two_that_disagree_without_poses_are_named_and_both_stay_in():
     rates = _run(agreement, held)
     assert agreement.fault.startswith("the gyros of modules 0 and 1 disagree by 60 deg/s for ")
     assert agreement.fault.endswith("no poses to tell which") and agreement.excluded is None
-    np.testing.assert_allclose(rates[-1], turn / 2)  # the mean: neither can be told wrong
+    np.testing.assert_allclose(rates[-1], turn / 2, atol=5 * NOISE)  # the mean: neither can be told wrong
 
 
 @pytest.mark.parametrize("bad", [np.array([0.0, 0.0, 0.0]), np.array([np.nan, 0.0, 0.0])])
@@ -92,9 +100,10 @@ def test_of_three_the_odd_one_is_left_out(bad):
     good = np.array([0.2, -1.0, 0.1])
     three = lambda t: np.array([good, good, good if t < 0.1 else bad])  # noqa: E731
     rates = _run(agreement, three)
-    assert agreement.excluded == 2 and agreement.fault.startswith("module 2's gyro disagrees with the others' by ")
-    assert ("not a number" in agreement.fault) == bool(np.isnan(bad).any())
-    np.testing.assert_allclose(rates[-1], good)  # the body rate from the other two
+    assert agreement.excluded == 2
+    expected = "is not a number" if np.isnan(bad).any() else "disagrees with the others' by "
+    assert agreement.fault.startswith(f"module 2's gyro {expected}"), agreement.fault
+    np.testing.assert_allclose(rates[-1], good, atol=5 * NOISE)  # the body rate from the other two
 
 
 def test_a_short_glitch_is_forgotten():
@@ -146,7 +155,7 @@ def test_a_stuck_gyro_whose_packets_arrive_is_still_found():
     good = np.array([0.0, 0.3, 0.0])
     for k in range(round(0.2 / DT)):
         t = k * DT
-        rates = np.array([good, good if t < 0.1 else np.radians([2000.0, 0.0, 0.0])])
+        rates = np.array([_noisy(good), _noisy(good) if t < 0.1 else np.radians([2000.0, 0.0, 0.0])])
         agreement.rate(t, rates, rates.mean(axis=0), lambda: good, np.array([0.003, 0.004]), 0.004, 0.03)
     assert agreement.excluded == 1 and "module 1" in agreement.fault
 
@@ -172,10 +181,10 @@ def test_with_one_module_out_of_the_flight_the_others_stay_judged():
     for k in range(round(0.2 / DT)):
         t = k * DT
         stuck = good if t < 0.1 else np.radians([2000.0, 0.0, 0.0])
-        rates = np.array([good, stuck, [0.0, -3.0, 0.0]])
+        rates = np.array([_noisy(good), _noisy(stuck), [0.0, -3.0, 0.0]])
         rate, _ = agreement.rate(t, rates, rates.mean(axis=0), lambda: good, ages, np.inf, 0.03)
     assert agreement.excluded == 1 and agreement.fault.startswith("module 1's gyro disagrees with the other's")
-    np.testing.assert_allclose(rate, good)
+    np.testing.assert_allclose(rate, good, atol=5 * NOISE)
 
 
 @pytest.mark.parametrize("ages", [[np.nan, 0.004], [0.004, np.nan]])
@@ -186,3 +195,54 @@ def test_an_age_that_is_not_a_number_is_stale_wherever_it_is(ages):
     fresh = 1 if np.isnan(ages[0]) else 0
     np.testing.assert_allclose(rate, rates[fresh])
     assert age == pytest.approx(0.004)
+
+
+def test_a_reading_repeated_to_the_last_bit_is_frozen_and_left_out():
+    """Module 1's packets keep coming (fresh) but repeat one reading from 0.1 s: frozen after 40 ms, left out;
+    module 0's readings, which change, are the body rate. A reading held between packets (2-3 periods) is not."""
+    agreement = GyroAgreement()
+    good = np.array([0.0, 0.3, 0.0])
+    stuck = _noisy(good)
+    module1 = _noisy(good)
+    for k in range(round(0.3 / DT)):
+        t = k * DT
+        module1 = stuck if t >= 0.1 else _noisy(good) if k % 3 == 0 else module1  # a packet every third period
+        rates = np.array([_noisy(good), module1])
+        rate, _ = agreement.rate(t, rates, rates.mean(axis=0), ages=np.array([0.002, 0.004]), age=0.004,
+                                 stale_s=0.03)
+        if t < 0.1:
+            assert agreement.fault == ""
+    assert agreement.excluded == 1 and agreement.lost_since is None
+    assert agreement.fault.startswith("module 1's gyro has read (0.0, 17.2, 0.0) deg/s to the last bit for "), \
+        agreement.fault
+    lasted = float(agreement.fault.split(" for ")[1].split(" ms")[0])
+    assert 40 <= lasted <= 44
+    np.testing.assert_allclose(rate, good, atol=5 * NOISE)
+
+
+@pytest.mark.parametrize("value", [np.nan, 0.0, 1.0])
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_every_gyro_failed_alike_gives_no_rate_and_blames_no_module(value, n):
+    """Every module's gyro NaN, or stuck at one value (they agree with each other), from 0.1 to 0.2 s: no module
+    is blamed or left out; the rate is NaN, as old as the last usable reading (the start of a freeze); after,
+    the readings are flown on again."""
+    agreement = GyroAgreement()
+    good = np.array([0.1, -0.2, 0.05])
+    lost = []
+    for k in range(round(0.3 / DT)):
+        t = k * DT
+        rates = np.full((n, 3), value) if 0.1 <= t < 0.2 else _noisy(np.tile(good, (n, 1)))
+        rate, age = agreement.rate(t, rates, rates.mean(axis=0), lambda: good)
+        if np.isnan(rate).any():
+            lost.append((t, age, agreement.lost_since))
+        elif t >= 0.2:
+            np.testing.assert_allclose(rate, good, atol=5 * NOISE)
+    whose = "the gyro" if n == 1 else "every module's gyro"
+    assert agreement.fault.startswith(whose) and agreement.fault.endswith("no body rate, the attitude from the "
+                                                                          "poses alone"), agreement.fault
+    assert agreement.excluded is None
+    first_lost = 0.1 if np.isnan(value) else 0.1 + 0.04  # frozen: seen once it has lasted 40 ms
+    assert lost[0][0] == pytest.approx(first_lost, abs=DT + 1e-9) and lost[-1][0] == pytest.approx(0.2 - DT)
+    for t, age, since in lost:  # the last usable reading: the one before the NaN, or before the freeze
+        assert since == pytest.approx(0.1 - DT if np.isnan(value) else 0.1, abs=1e-9)
+        assert age == pytest.approx(t - since)

@@ -120,6 +120,17 @@ def f_log_summary_damaged(cli, tmp_path):
     _summary_or_footer(cli, tmp_path, "summary")
 
 
+@process_fault("log recover of a file with no intact message: an MCAP header alone, then garbage",
+               "the counts on stdout, one line saying nothing was recovered, exit 1, no output file left behind")
+def f_log_recover_nothing(cli, tmp_path):
+    bad = tmp_path / "header_only.mcap"
+    bad.write_bytes(flight_log().read_bytes()[:8] + bytes(range(256)) * 4)
+    out = tmp_path / "r.mcap"
+    code, stdout, err = cli("log", "recover", str(bad), str(out))
+    assert code == 1 and json.loads(stdout)["messages"] == 0 and not out.exists(), err
+    assert err.endswith(f"groundstation: {bad}: no intact message to recover; {out} not written\n"), err
+
+
 @process_fault("log recover onto a path that exists (a link to /dev/full; a good log alike)",
                "one line naming the output file, exit 2, nothing written there (a log is never overwritten; a full "
                "disk: the next row)")

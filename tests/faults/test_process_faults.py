@@ -201,6 +201,15 @@ def f_sighup_twice_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 7668, signal.SIGHUP), signal.SIGHUP)
 
 
+@process_fault("Ctrl-C in flight, then SIGHUP and SIGTERM (the operator lands it, then their SSH session drops and "
+               "the session's end follows)",
+               "the landing goes on, never a stop: the SIGTERM after a hang-up is the session's, whatever began the "
+               "landing; the log finalized with operator land (SIGINT); exit 0")
+def f_ctrl_c_then_hangup_then_sigterm(cli, tmp_path):
+    signals = [signal.SIGINT, signal.SIGHUP, signal.SIGTERM]
+    _landed(*_signalled_in_flight(cli, tmp_path, signals, 7676, signal.SIGINT), signal.SIGINT)
+
+
 @process_fault("Ctrl-\\ (SIGQUIT) in flight",
                "a landing like Ctrl-C (by default it ends the process and the assembly falls); exit 0")
 def f_sigquit_in_flight(cli, tmp_path):
@@ -349,6 +358,7 @@ def _hung_writer(cli, tmp_path, log: Path, cfg: Path, hang, resume) -> None:
     summary = json.loads(out)
     assert proc.returncode == 1 and summary["phase"] == "done" and summary["reason"].startswith(HUNG), err
     assert f"> {WRITER_STALL_S:g} s: hung" in summary["reason"]
+    assert f"> {WRITER_STALL_S:g} s: hung" in summary["log_error"]  # in the JSON too, whatever the phase says
     assert "the flight landed early: log writer failed" in err
     _wait_until(lambda: _gone(writer), what="finished by its writer, resumed")
     r = analyse(log)  # what it had been given, finished: the flight's end never reached it

@@ -24,7 +24,7 @@ from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import SETTLE_S, TRACK_START_S, config_with, read_log, sitl_config
 
 LANDING = {"duration = 16.0\n": "duration = 16.0\nlanding_s = 1.5\n"}
-"""The rows that judge a landing (upright, on the ground) land in 1.5 s, not the test flights' 1 s: one gyro or
+"""The rows that judge a landing (upright, on the ground) land in 1.5 s, not the test flights' 1.2 s: one gyro or
 no mocap on a 1 m/s descent tipped the V 16 deg."""
 
 PEER_PORT = 19920
@@ -259,6 +259,37 @@ def f_gyro_failed(cli, tmp_path):
                                                                  m["truth"]["orientation"])))))) for m in after]
     assert after and max(off) < 1.0, max(off)
     assert max(np.degrees(np.linalg.norm(m["state"]["omega_radps"])) for m in after) < 200.0
+
+
+@estimate_fault("every module's gyro stuck alike in tracking: all read 1 rad/s about each axis, unchanging (dry run)",
+                "no module blamed: frozen (the same to the last bit for 40 ms), the attitude and rate from the poses, "
+                "a landing at half the attitude bandwidth, named; tilt below 20 deg, exit 1")
+def f_gyros_stuck_alike(cli, tmp_path):
+    _gyros_failed_alike(tmp_path, 1.0, "has read (57.3, 57.3, 57.3) deg/s to the last bit for ")
+
+
+@estimate_fault("every module's gyro NaN in the plan's landing (dry run)",
+                "no rate: the attitude and rate from the poses, the landing goes on at half the attitude bandwidth, "
+                "named; tilt below 20 deg, exit 1")
+def f_gyros_nan_in_landing(cli, tmp_path):
+    _gyros_failed_alike(tmp_path, float("nan"), "is not a number", at=TRACK_START_S + 4.2)
+
+
+def _gyros_failed_alike(tmp_path, value: float, what: str, at: float = TRACK_START_S + 2.5) -> None:
+    """Stuck agreeing, the gyros were flown on: the estimate held or turned, every pose rejected as "off the gyros'
+    prediction", a blind landing on that attitude came to rest upside down (177-180 deg), logged as landed."""
+    faults = Faults()
+    on_period, failed = _injected(faults, "gyros_stuck", value, at)
+    log = tmp_path / "gyros.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7569", **LANDING), duration=4.0, log_path=log,
+              faults=faults, on_period=on_period)
+    assert res.phase == "done" and res.reason.startswith(f"gyro fault: every module's gyro {what}"), res.reason
+    assert res.reason.endswith("no body rate, the attitude from the poses alone")
+    named = [t for t, _, text in res.events if "gyro fault" in text]
+    assert named and named[0] - failed[0] <= 0.06, (named, failed)
+    # Before the freeze shows (40 ms) the stuck reading turns the estimate and the controller turns the body back
+    # by as much; the landing that follows, on the poses' rate, rocks a few degrees more: 10-15 deg measured.
+    _touched_down_upright_within(log, 20.0)
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

@@ -203,3 +203,14 @@ def test_signals_land_then_stop_and_before_the_loop_interrupt():
             assert requests.stop.is_set() and requests.why("operator stop") == "operator stop (SIGTSTP)"
         finally:
             restore()
+    for first in (signal.SIGINT, signal.SIGTERM):  # the landing begun by another signal: the hang-up still counts
+        requests, started = Requests(), threading.Event()
+        started.set()
+        restore = fly_module._install_signals(requests, started)
+        try:
+            os.kill(os.getpid(), first)
+            os.kill(os.getpid(), signal.SIGHUP)
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert requests.land.is_set() and not requests.stop.is_set(), first
+        finally:
+            restore()
