@@ -215,13 +215,16 @@ def start_budget(n: int) -> tuple[int, int]:
     every quarter turn of several folds (§IV-C, n = 4: 0.4-0.8 s per topology for 16-24 starts). Large ones take
     1.5-2 s (n = 30) and 10-25 s (n = 90) per start, and nearly every start ends in a local optimum of its own
     (n = 30: 6 distinct optima from 6 starts, 0.5-2 % apart), so the budget is what the default command can spend:
-    about 10 s at n = 30 and under a minute at n = 90 (``python -m benchmarks.design``). Between, n = 10-20 takes
-    at least two folds at every quarter turn: with only the first fold's four, two turns often agreed on a poorer
-    optimum (benchmark part 2: best of three strategies in 15 of 18 cases with 4, 16 with 8)."""
+    about 10 s at n = 30 and under a minute at n = 90 (``python -m benchmarks.design``). Between, n = 10-20 runs
+    all four folds at every quarter turn: two starts agreeing is no evidence there (n = 15: the first two folds
+    agreed on an optimum 3.1 % above the one the fourth found), and random shapes almost never meet the wrenches
+    (2 of 102 at n = 20) at 1-3 times a fold's cost. Against the best of 50 starts on random10_seed0,
+    median over three topologies: n = 10 0.00 %, n = 15 0.41 -> 0.00 %, n = 20 0.00 %, n = 30 0.12 %, in 1.00-1.07
+    times the time of the 8-16 starts before (``python -m benchmarks.design_quality``)."""
     if n <= 8:
         return 16, 32
     if n <= 20:
-        return 8, 16
+        return 16, 16
     if n <= 40:
         return 2, 5
     return 2, 3
@@ -331,6 +334,13 @@ class _MultiStart:
                                 time.perf_counter() - t0, *self.split, self.nlp.build_s - built)
 
 
+def confirmed(values: list[float], started: int, min_starts: int, opts: SolverOptions) -> bool:
+    """The multi-start's stopping rule: ``started`` starts have run, at least ``min_starts``, and of their
+    feasible ``values`` ``opts.confirmations`` reached the least."""
+    _, hits = _optima(values, opts.same_optimum_rtol)
+    return started >= min_starts and hits >= opts.confirmations
+
+
 def _optima(values: list[float], rtol: float) -> tuple[tuple[float, ...], int]:
     """Distinct local optima among ``values`` (ascending) and how many values reached the least."""
     distinct: list[float] = []
@@ -400,8 +410,7 @@ def _multistart(topo: Topology, params: ModuleParams, wrenches: np.ndarray, weig
             out, rep = runs.run(start, first_cap, objective)
             outcomes.append(out)
             reports.append(rep)
-            _, hits = _optima([o.value for o in outcomes if o.verification.feasible], opts.same_optimum_rtol)
-            if i + 1 >= min_starts and hits >= opts.confirmations:
+            if confirmed([o.value for o in outcomes if o.verification.feasible], i + 1, min_starts, opts):
                 stop_reason = "confirmed"
                 break
         if not any(o.verification.feasible for o in outcomes) and opts.max_iter > first_cap:
