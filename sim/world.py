@@ -60,6 +60,7 @@ class SimulatedWorld:
             resting[:] = resting or [state]  # where it stood at the start: the decoy's pose
             vmocap.paused = faults.mocap_paused
             vmocap.frozen = faults.mocap_frozen
+            self.backend.stuck_gyros = faults.gyros_stuck  # from the preflight on: a failure before take-off
             if faults.mocap_restarts > restarts[0]:
                 restarts[0] = faults.mocap_restarts
                 replaced = vmocap.restart(PosePublisher(session, key, mac_key))
@@ -103,7 +104,6 @@ class SimulatedWorld:
         def advance(t: float) -> None:
             self.backend.link_ok = not self.faults.link_lost
             self.backend.failed_gyro = self.faults.gyro_failed
-            self.backend.stuck_gyros = self.faults.gyros_stuck
             self.backend.push = self.faults.push_n
             if self.faults.tied_down:
                 self.backend.tie_down()

@@ -228,8 +228,8 @@ class RigidBodyFilter:
         self._r_gyro: Mat3 = _IDENTITY
         """Attitude ``gyro_delay`` earlier: where the gyros have got to."""
         self._b: Vec3 = (0.0, 0.0, 0.0)
-        self._lost: tuple[Vec3, bool] | None = None
-        """While no gyro is usable: (the bias before, whether a pose has been fused since); None otherwise."""
+        self._lost: tuple[Vec3, float] | None = None
+        """While no gyro is usable: (the bias before, when the last usable reading arrived, s); None otherwise."""
         self._pt = [0.0] * 6
         """Translation covariance per axis: pp, pv, pd, vv, vd, dd."""
         self._pa = [0.0] * 3
@@ -287,11 +287,14 @@ class RigidBodyFilter:
             unseen = math.inf
         lost = gyro is not None and not usable and unseen < math.inf
         if lost != (self._lost is not None):
-            self._lose_gyros() if lost else self._regain_gyros()
+            self._lose_gyros(t - gyro_age) if lost else self._regain_gyros()
         if lost:
-            # The gyro reads zero: the rate is minus the "bias", which the poses estimate (``lost_rate_walk``).
-            g, unseen = (0.0, 0.0, 0.0), (unseen if not self._lost[1] else 0.0)
-        self._gyro = None if unseen > 0.0 and not lost else g  # never heard (an infinite age): none streamed
+            # The gyro reads zero: the rate is minus the "bias", which the poses estimate (``lost_rate_walk``). But
+            # only while they come: past a pose or two missed, the attitude is held (turned on at the rate last
+            # learnt, a 200 ms gap spun the V over) and its uncertainty grows, so the next pose sets it.
+            unseen = t - max(self.last_fused_t, self._lost[1]) - self.settings.gyro_stale_s
+            g = (0.0, 0.0, 0.0)
+        self._gyro = None if unseen > 0.0 else g  # never heard (an infinite age): none streamed
         if self.initialized and self._t is not None and t > self._t:
             if 0.0 < unseen < math.inf:
                 self._unseen_turn(max(unseen - (t - self._t), 0.0), unseen)
@@ -301,11 +304,11 @@ class RigidBodyFilter:
         elif self._t is None or t > self._t:
             self._t = t
 
-    def _lose_gyros(self) -> None:
-        """No gyro usable from now: the bias state carries minus the body rate, starting from the poses' (or the
-        last reading's), free to follow it."""
+    def _lose_gyros(self, last_usable: float) -> None:
+        """No gyro usable from now (the last usable reading arrived at ``last_usable``, s): the bias state carries
+        minus the body rate, starting from the poses' (or the last reading's), free to follow it."""
         rate = self._pose_rate() or self._rate() or (0.0, 0.0, 0.0)
-        self._lost = (self._b, False)
+        self._lost = (self._b, last_usable)
         self._b = (-rate[0], -rate[1], -rate[2])
         self._qb = self.settings.lost_rate_walk ** 2
         # The attitude: what the failed readings made of it is unknown (stuck at 5 rad/s for the 40 ms it takes to
@@ -454,8 +457,6 @@ class RigidBodyFilter:
                                  mat3_mul(r_m, mat3_from_rotvec(*ct)), a])
         self._rejecting_since = None
         self._pt_plain = None
-        if self._lost is not None:
-            self._lost = (self._lost[0], True)  # the poses have the attitude again: no more unseen turning
         self.fused += 1
         self.last_fused_t = max(self.last_fused_t, m.t)
         self._keep_fused(m)
@@ -560,6 +561,12 @@ class RigidBodyFilter:
                 self._pt, self._pt_plain = self._pt_plain, None
         return False
 
+    @property
+    def attitude_unobserved(self) -> bool:
+        """No gyro is usable and no pose has come for more than ``gyro_stale_s``: nothing observes the attitude
+        (it is held, its uncertainty growing)."""
+        return self._lost is not None and self._gyro is None
+
     def gyros_lost(self) -> None:
         """No gyro is usable any more (every one failed alike: :class:`GyroAgreement`). A fault latched on poses
         rejected for their attitude alone was the gyros' doing (stuck, they held or turned the estimate away from
@@ -612,3 +619,4 @@ class RigidBodyFilter:
         blind = max(0.0, self._t - self.last_fused_t)
         return Estimate(self._t, state, math.sqrt(pp) + 0.5 * GRAVITY * sigma_theta * blind * blind, math.sqrt(vv),
                         sigma_theta, np.array(self._b), np.array(self._d))
+

@@ -586,6 +586,10 @@ class Flight:
         sp = replace(sp, omega=self._turn_rate(t, sp, "plan" if reference is self.plan else self._landing[0]))
         gains = self.gains if self.gyros.lost_since is None else self._gains_without_gyros
         out = control(state, sp, self.model, gains)
+        if est.attitude_unobserved:
+            # Neither gyros nor poses: an attitude error the controller sees cannot shrink (the estimate is held),
+            # and its torque, held on, turned the V over in 0.4 s. No torque: the body keeps the turn it has.
+            out = replace(out, wrench=np.concatenate([out.wrench[:3], np.zeros(3)]))
         u = self.alloc(out.wrench, self.model)
         if not np.all(np.isfinite(u)):
             self._emergency(t, "non-finite motor command")
@@ -802,6 +806,11 @@ class Flight:
                 self._set_phase(0.0, Phase.ABORTED, f"arming failed: {exc}")
                 return self._stats
             self._estimate(self.backend.telemetry())
+            if self.gyros.fault:  # nothing spun yet: a failed IMU on the ground is no reason to take off
+                self.backend.disarm()
+                self.reason = f"gyro fault before take-off: {self.gyros.fault}"
+                self._set_phase(0.0, Phase.ABORTED, self.reason)
+                return self._stats
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:

@@ -630,10 +630,11 @@ def _install_signals(requests: Requests, started: threading.Event):
             return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on
         if requests.land.is_set() and signum in NEVER_A_STOP:
             return  # the landing goes on: repeated by a tool (log rotation, a timer), not asked by an operator
-        # A landing a tool's signal began was not the operator's first request: their first Ctrl-C only lands.
-        by_a_tool = requests.source in TOOL_SIGNALS
+        # A landing a tool's signal or a hang-up began was not the operator's first request: their first Ctrl-C
+        # only lands (a Ctrl-C after the hang-up stopped the motors 0.8 m up).
+        not_asked = requests.source in TOOL_SIGNALS or requests.source == "SIGHUP"
         requests.source = signal.Signals(signum).name
-        if requests.land.is_set() and signum != signal.SIGHUP and not by_a_tool:
+        if requests.land.is_set() and signum != signal.SIGHUP and not not_asked:
             requests.stop.set()
             if not started.is_set():
                 raise KeyboardInterrupt

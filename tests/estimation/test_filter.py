@@ -414,3 +414,29 @@ def test_lost_gyros_take_back_a_fault_of_poses_rejected_for_their_attitude_alone
     assert f.fault().startswith("every pose rejected")
     f.gyros_lost()
     assert (f.fault() == "") == (why == "attitude")
+
+
+def test_without_gyros_or_poses_the_attitude_is_held_and_unobserved():
+    """The gyros lost, then no pose for 200 ms: the attitude is held (turned on at the rate learnt, it spun the V
+    over), :attr:`attitude_unobserved` says so, its uncertainty grows, and the first pose after is fused."""
+    rate = np.array([0.0, 0.0, 0.8])  # a yaw: the hovering thrust stays vertical
+    truth = _turning_at(rate)
+    f = RigidBodyFilter(EstimatorSettings(attitude_noise=math.radians(0.1)), MASS)
+    _run(f, 0.99, truth, lambda t: rate)
+    for k in range(int(round(0.5 / DT))):  # gyros lost at 1 s; poses until 1.2 s, none until 1.4 s, then again
+        t = 1.0 + k * DT
+        f.predict(t, np.full(3, np.nan), gyro_age=t - (1.0 - DT))
+        if k % 2 == 0 and not 1.2 < t < 1.4:
+            p, r = truth(t)
+            fused = f.correct(PoseMeasurement(t, p, r))
+            if t > 1.4:
+                assert fused, (t, f.last_rejection)
+        if t == pytest.approx(1.2 + 10 * DT):  # 40 ms into the gap
+            assert f.attitude_unobserved
+            held = f.state().rotation
+        if 1.24 < t < 1.4:
+            np.testing.assert_allclose(f.state().rotation, held)  # held, not turned on
+        if 1.1 < t < 1.2:
+            assert not f.attitude_unobserved
+    assert not f.attitude_unobserved
+    assert math.degrees(rotation_angle(f.state().rotation, truth(1.5 - DT)[1])) < 1.0

@@ -271,6 +271,37 @@ def f_gyros_nan_in_landing(cli, tmp_path):
     _gyros_failed_alike(tmp_path, float("nan"), "is not a number", at=TRACK_START_S + 4.2)
 
 
+@estimate_fault("every module's gyro NaN in tracking, then no pose for 200 ms (dry run)",
+                "the attitude held through the gap with no torque on it (nothing observes it), the poses taken again "
+                "after; the landing named, upright (tilt below 20 deg), exit 1")
+def f_gyros_nan_then_a_pose_gap(cli, tmp_path):
+    """Turned on at the rate the poses had shown, the held estimate spun the V over (98 deg)."""
+    faults = Faults()
+    at = TRACK_START_S + 2.5
+
+    def on_period(t):
+        faults.gyros_stuck = float("nan") if t >= at else None
+        faults.mocap_paused = at + 0.3 <= t < at + 0.5
+
+    log = tmp_path / "gap.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7571"), duration=4.0, log_path=log, faults=faults,
+              on_period=on_period)
+    assert res.phase == "done" and res.reason.startswith("gyro fault: every module's gyro is not a number")
+    _touched_down_upright_within(log, 20.0)
+
+
+@estimate_fault("every module's gyro NaN before take-off (dry run)",
+                "aborted before anything spins: the reason names the gyros; exit 1")
+def f_gyros_nan_before_takeoff(cli, tmp_path):
+    log = tmp_path / "ground.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7572"), duration=4.0, log_path=log,
+              faults=Faults(gyros_stuck=float("nan")))
+    assert res.phase == "aborted" and res.reason == ("gyro fault before take-off: every module's gyro is not a "
+                                                     "number: no body rate, the attitude from the poses alone")
+    _, _, _, motors = read_log(log)
+    assert not any("state" in m for _, m in motors), "a control period ran"
+
+
 def _gyros_failed_alike(tmp_path, value: float, what: str, at: float = TRACK_START_S + 2.5) -> None:
     """Stuck agreeing, the gyros were flown on: the estimate held or turned, every pose rejected as "off the gyros'
     prediction", a blind landing on that attitude came to rest upside down (177-180 deg), logged as landed."""

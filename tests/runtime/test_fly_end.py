@@ -195,6 +195,10 @@ def test_signals_land_then_stop_and_before_the_loop_interrupt():
             os.kill(os.getpid(), signal.SIGHUP)
             os.kill(os.getpid(), signal.SIGTERM)  # a session's end after the hang-up
             assert not requests.stop.is_set() and requests.source == "SIGHUP"
+            # Nobody asked for the hang-up's landing: the first Ctrl-Z (or Ctrl-C) after it only lands, the second
+            # stops.
+            os.kill(os.getpid(), signal.SIGTSTP)
+            assert not requests.stop.is_set() and requests.source == "SIGTSTP"
             if started_first:
                 os.kill(os.getpid(), signal.SIGTSTP)
             else:
