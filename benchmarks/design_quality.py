@@ -10,7 +10,9 @@ default budget and stopping rule (:func:`~groundstation.design.optimize.start_bu
 :func:`~groundstation.design.optimize.confirmed`): the cost it stops at and the time its starts took come from the
 same run as the reference, and their ratios do not depend on the machine's load. So does the budget before this
 benchmark's change (:func:`budget_before`), the time baseline. ``--check-cli`` also runs ``groundstation optimize
-TASK --topology CODE --json`` per case and checks that its cost is the replayed one.
+TASK --topology CODE --json`` per case and checks that its cost is the replayed one (to ``same_optimum_rtol``: of
+starts at one optimum the command reports a fully converged one). Not replayed: the command's second pass with
+more iterations when none of its starts met the wrenches (such a case is marked).
 
 Target (issue 23): the default within 0.5 % of the 50-start best (median over the cases at each n), in no more than
 1.5 times the time of the budget before (median over the cases).
@@ -27,11 +29,13 @@ from dataclasses import dataclass
 
 from benchmarks._util import median, print_table
 from benchmarks.design import ROOT, P, compact_topologies
-from groundstation.design.optimize import SolverOptions, confirmed, optimize, start_budget
+from groundstation.design.optimize import SolverOptions, confirmed, default_rim_tilts, optimize, start_budget
 from groundstation.design.task import load_task
 
 REFERENCE = SolverOptions(min_starts=50, max_starts=50, random_starts=50)
 """The 50-start run each case is measured against."""
+DEFAULT_PLAN = len(default_rim_tilts(30)) * len(SolverOptions().yaw_turns) + SolverOptions().random_starts
+"""Starts in the default plan (below n = 60): the reference's later random shapes are not the default's."""
 TARGET_GAP = 0.005
 TARGET_TIME_RATIO = 1.5
 
@@ -62,8 +66,9 @@ def _reference(task_path: str, code: str) -> Case:
 
 def replay(case: Case, budget: tuple[int, int]) -> tuple[float, int, float]:
     """(cost, starts, seconds) of a multi-start with ``budget`` = (min, max) starts and the default stopping rule,
-    replayed from the case's 50 starts."""
+    replayed from the case's 50 starts (at most the default plan's: its folds and ``random_starts`` shapes)."""
     lo, hi = budget
+    hi = min(hi, DEFAULT_PLAN)
     values: list[float] = []
     seconds = 0.0
     for i, (cost, wall) in enumerate(case.starts[:hi]):
@@ -105,13 +110,16 @@ def main(argv: list[str] | None = None) -> int:
     rows, by_n = [], {}
     ok = True
     for case in cases:
+        if not case.best < float("inf"):
+            print(f"  n={case.n} {case.code}: no start of 50 met the wrenches: left out", flush=True)
+            continue
         now = replay(case, start_budget(case.n))
         before = replay(case, budget_before(case.n))
         gap, gap_before = now[0] / case.best - 1, before[0] / case.best - 1
-        by_n.setdefault(case.n, []).append((gap, gap_before, now[2], before[2]))
+        by_n.setdefault(case.n, []).append((gap, gap_before, now[2] / before[2]))
         if args.check_cli:
             cli = _cli_cost(task_path, case.code)
-            agrees = abs(cli - now[0]) <= 1e-9 * now[0]
+            agrees = abs(cli - now[0]) <= SolverOptions().same_optimum_rtol * now[0]
             ok &= agrees
             print(f"  n={case.n} {case.code}: the default command {cli:.9e}, replayed {now[0]:.9e}: "
                   f"{'agree' if agrees else 'DISAGREE'}", flush=True)
@@ -121,8 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                 ["n", "topology", "50-start best", "default", "starts", "s", "before", "starts", "s"], rows)
     summary = []
     for n, v in sorted(by_n.items()):
-        gap, gap_before = median([x[0] for x in v]), median([x[1] for x in v])
-        ratio = median([x[2] for x in v]) / median([x[3] for x in v])
+        gap, gap_before, ratio = (median([x[k] for x in v]) for k in range(3))
         ok &= gap <= TARGET_GAP and ratio <= TARGET_TIME_RATIO
         summary.append([n, len(v), f"{100 * gap:.2f} %", f"{100 * gap_before:.2f} %", f"{ratio:.2f}"])
     print_table("Medians over the cases", ["n", "cases", "default gap", "gap before", "time / before"], summary)

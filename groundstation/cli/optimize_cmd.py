@@ -23,7 +23,8 @@ EXIT_INFEASIBLE = 1
               help="Multi-start: tilt of the outermost module of each starting bowl, degrees in [-90, 90], e.g. "
                    "20,10,30,5 (0 = flat start). Default: chosen by size.")
 @click.option("--max-starts", type=click.IntRange(min=1), default=None,
-              help="Start budget (default: by size, see README). Stops earlier once two starts agree on the best.")
+              help="Start budget (default: by size, see README). Stops earlier once two starts agree on the best "
+                   "(never before 16 starts up to n = 20).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random starts.")
 @click.option("--fixed-yaw", is_flag=True, help="Do not optimize the body yaw (the paper's formulation).")
 @click.option("--out", default=None, metavar="FILE.json", help="Write the assembly file.")

@@ -215,7 +215,7 @@ def start_budget(n: int) -> tuple[int, int]:
     every quarter turn of several folds (§IV-C, n = 4: 0.4-0.8 s per topology for 16-24 starts). Large ones take
     1.5-2 s (n = 30) and 10-25 s (n = 90) per start, and nearly every start ends in a local optimum of its own
     (n = 30: 6 distinct optima from 6 starts, 0.5-2 % apart), so the budget is what the default command can spend:
-    about 10 s at n = 30 and under a minute at n = 90 (``python -m benchmarks.design``). Between, n = 10-20 runs
+    about 10 s at n = 30 and under a minute at n = 90 (``python -m benchmarks.design``). Between, n = 9-20 runs
     all four folds at every quarter turn: two starts agreeing is no evidence there (n = 15: the first two folds
     agreed on an optimum 3.1 % above the one the fourth found), and random shapes almost never meet the wrenches
     (2 of 102 at n = 20) at 1-3 times a fold's cost. Against the best of 50 starts on random10_seed0,

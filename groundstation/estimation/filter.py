@@ -30,7 +30,8 @@ swapped for another, a forger's track. A rejected position multiplies the positi
 ``rejection_inflation`` (a fading memory; the disturbance's by its square root: :func:`_inflated`): if the model,
 not the pose, was wrong (a shove, a thrust map far off), the gate has opened to the poses again after three or four
 samples, before the fault; only a pose the body could have reached inflates it (``max_model_accel``), so a pose a
-metre away stays out, and after the fault (latched) no pose is fused again. The attitude is not inflated: the gyros
+metre away stays out, and after the fault (latched; unless it was the gyros': :meth:`RigidBodyFilter.gyros_lost`)
+no pose is fused again. The attitude is not inflated: the gyros
 predict it too well for a frozen pose to pass. Through an outage the covariance grows with the model's noises, so
 the gate opens again by itself and the failsafe can act on the uncertainty.
 """
@@ -157,7 +158,7 @@ class Estimate:
 
 
 LOST_ATTITUDE_SIGMA = 0.5
-"""Std of the attitude when the gyros are lost, rad (:meth:`RigidBodyFilter.predict`): the next pose is taken
+"""Std of the attitude when the gyros are lost, rad (:meth:`RigidBodyFilter._lose_gyros`): the next pose is taken
 whole."""
 POSE_RATE_WINDOW_S = 0.05
 """Span of the poses :meth:`RigidBodyFilter.pose_rate` differentiates, s."""
@@ -250,6 +251,8 @@ class RigidBodyFilter:
         """Measurements captured before the oldest estimate kept (``history_s``), dropped unused."""
         self.last_rejection = ""
         self.last_fused_t = -math.inf
+        self._fused_arrival = -math.inf
+        """The estimate's time when the newest fused measurement was fused (its arrival, within a period), s."""
         """Capture time of the newest fused measurement, s."""
         self._last_pose: tuple[float, list[float], list[float]] | None = None
         """(t, position, rotation's entries) of the measurement before (to tell a frozen stream)."""
@@ -274,12 +277,13 @@ class RigidBodyFilter:
     def predict(self, t: float, gyro: np.ndarray | None, gyro_age: float = 0.0) -> None:
         """Advance the estimate to ``t`` (s), turning it at ``gyro``, the body rate the modules report now (rad/s,
         body frame: the newest reading is the best one for the time since the last call; None: none streamed,
-        the attitude is held between measurements), under the last :meth:`command`. ``gyro_age``: how long ago
-        the reading arrived, s (beyond ``gyro_stale_s`` it is stale)."""
+        the attitude is held between measurements; NaN: no gyro usable, ``gyro_age`` since the last usable one,
+        and the rate is learnt from the poses: ``lost_rate_walk``), under the last :meth:`command`. ``gyro_age``:
+        how long ago the reading arrived, s (beyond ``gyro_stale_s`` it is stale)."""
         self._state = None
         g = None if gyro is None else np.asarray(gyro, float).tolist()
-        # A reading that is not a rate (no gyro usable: :class:`GyroAgreement`) is a stale one, as old as the last
-        # usable reading: the attitude is held and its uncertainty grows, so the poses correct it.
+        # A reading that is not a rate (NaN: no gyro usable, :class:`GyroAgreement`) puts the filter in its
+        # gyros-lost mode, below.
         unseen = gyro_age - self.settings.gyro_stale_s if g is not None else 0.0
         usable = g is not None and len(g) == 3 and all(map(math.isfinite, g))
         g = tuple(g) if usable else None
@@ -290,9 +294,11 @@ class RigidBodyFilter:
             self._lose_gyros(t - gyro_age) if lost else self._regain_gyros()
         if lost:
             # The gyro reads zero: the rate is minus the "bias", which the poses estimate (``lost_rate_walk``). But
-            # only while they come: past a pose or two missed, the attitude is held (turned on at the rate last
-            # learnt, a 200 ms gap spun the V over) and its uncertainty grows, so the next pose sets it.
-            unseen = t - max(self.last_fused_t, self._lost[1]) - self.settings.gyro_stale_s
+            # only while they come: ``gyro_stale_s`` after the last one fused *arrived* (its capture time would
+            # count the mocap's latency: at 30 ms every period was "unobserved"), the attitude is held (turned on
+            # at the rate last learnt, a 200 ms gap spun the V over) and its uncertainty grows, so the next pose
+            # sets it.
+            unseen = t - max(self._fused_arrival, self._lost[1]) - self.settings.gyro_stale_s
             g = (0.0, 0.0, 0.0)
         self._gyro = None if unseen > 0.0 else g  # never heard (an infinite age): none streamed
         if self.initialized and self._t is not None and t > self._t:
@@ -306,8 +312,8 @@ class RigidBodyFilter:
 
     def _lose_gyros(self, last_usable: float) -> None:
         """No gyro usable from now (the last usable reading arrived at ``last_usable``, s): the bias state carries
-        minus the body rate, starting from the poses' (or the last reading's), free to follow it."""
-        rate = self._pose_rate() or self._rate() or (0.0, 0.0, 0.0)
+        minus the body rate, starting from the poses' (or zero), free to follow it."""
+        rate = self._pose_rate() or (0.0, 0.0, 0.0)  # not the last reading's: a frozen one is what failed
         self._lost = (self._b, last_usable)
         self._b = (-rate[0], -rate[1], -rate[2])
         self._qb = self.settings.lost_rate_walk ** 2
@@ -362,7 +368,10 @@ class RigidBodyFilter:
         if self._pt_plain is not None:
             self._pt_plain = self._grown(self._pt_plain, dt)
         tt, tb, bb = self._pa
-        self._pa = [tt - 2.0 * dt * tb + dt * dt * bb + self._qg * dt, tb - dt * bb, bb + self._qb * dt]
+        if rate is None:  # the attitude held, not turned at the rate less the bias: no coupling to the bias
+            self._pa = [tt + self._qg * dt, tb, bb + self._qb * dt]
+        else:
+            self._pa = [tt - 2.0 * dt * tb + dt * dt * bb + self._qg * dt, tb - dt * bb, bb + self._qb * dt]
 
     def _grown(self, pt: list[float], dt: float) -> list[float]:
         """The translation covariance ``pt`` (per axis: position, velocity, disturbance; upper triangle) after
@@ -459,6 +468,7 @@ class RigidBodyFilter:
         self._pt_plain = None
         self.fused += 1
         self.last_fused_t = max(self.last_fused_t, m.t)
+        self._fused_arrival = self._t
         self._keep_fused(m)
         return True
 
@@ -525,14 +535,18 @@ class RigidBodyFilter:
         ct, cb = (kt * ex, kt * ey, kt * ez), (kb * ex, kb * ey, kb * ez)
         # The correction made at tm, carried along every estimate since. The attitude's is one rotation for all:
         # what the bias correction adds over the few ms of history is below 1e-6 rad (and the rotation costs).
+        # Not with the gyros lost: the "bias" is then the rate, corrected by up to 2 rad/s a pose, which over 20 ms
+        # of latency is a degree or two.
         now = max(self._t - tm, 0.0)
         dr = mat3_from_rotvec(ct[0] - cb[0] * now, ct[1] - cb[1] * now, ct[2] - cb[2] * now)
+        each = self._lost is not None
         for entry in reversed(self._history):
             tau = entry[0] - tm
             if tau < 0.0:
                 break
             entry[1], entry[2], entry[3] = _corrected(entry[1], entry[2], entry[3], cp, cv, cd, tau)
-            entry[4] = mat3_mul(entry[4], dr)
+            entry[4] = mat3_mul(entry[4], mat3_from_rotvec(ct[0] - cb[0] * tau, ct[1] - cb[1] * tau,
+                                                           ct[2] - cb[2] * tau) if each else dr)
         self._p, self._v, self._d = _corrected(self._p, self._v, self._d, cp, cv, cd, now)
         self._r_gyro = mat3_orthonormal(mat3_mul(self._r_gyro, dr))
         self._r = mat3_orthonormal(mat3_mul(self._r, dr))
@@ -563,15 +577,18 @@ class RigidBodyFilter:
 
     @property
     def attitude_unobserved(self) -> bool:
-        """No gyro is usable and no pose has come for more than ``gyro_stale_s``: nothing observes the attitude
-        (it is held, its uncertainty growing)."""
+        """No gyro is usable and no pose has been fused for more than ``gyro_stale_s`` (by when it arrived):
+        nothing observes the attitude (it is held, its uncertainty growing)."""
         return self._lost is not None and self._gyro is None
 
-    def gyros_lost(self) -> None:
-        """No gyro is usable any more (every one failed alike: :class:`GyroAgreement`). A fault latched on poses
-        rejected for their attitude alone was the gyros' doing (stuck, they held or turned the estimate away from
-        the poses): it is taken back, and the attitude's uncertainty, growing without a rate, lets the poses in."""
-        if self._fault and self._attitude_only:
+    def gyros_lost(self, since: float) -> None:
+        """No gyro has been usable since ``since`` (s; every one failed alike: :class:`GyroAgreement`); call it
+        once, when that is found. A fault latched on poses rejected for their attitude alone from then on was the
+        gyros' doing (stuck, they held or turned the estimate away from the poses): it is taken back, and the
+        attitude's uncertainty lets the poses in. A fault of a run that began before, or rejected positions too,
+        stays (called every period, a rigid body mis-fit 60 deg off was taken back six times and fused)."""
+        if self._fault and self._attitude_only and self._rejecting_since is not None and \
+                self._rejecting_since >= since:
             self._fault, self._rejecting_since = "", None
 
     # -- outputs ----------------------------------------------------------------------------------------------------
@@ -586,7 +603,8 @@ class RigidBodyFilter:
         return np.array(self._innovation_attitude)
 
     def fault(self) -> str:
-        """Why the measurements cannot be trusted ("" while they can); latched."""
+        """Why the measurements cannot be trusted ("" while they can); latched (:meth:`gyros_lost` alone takes
+        one back)."""
         return self._fault
 
     def age(self, now: float) -> float:
@@ -595,7 +613,8 @@ class RigidBodyFilter:
 
     def state(self) -> RigidState | None:
         """The state at the latest :meth:`predict` time (None before the first measurement); the body rate is the
-        gyros' less their bias."""
+        gyros' less their bias (with the gyros lost: minus the "bias", the rate learnt from the poses, which the
+        logged ``gyro_bias_radps`` then is too)."""
         if self._state is None and self.initialized:
             # Without a fresh gyro reading the poses' own rate (noisy, late, but not a made-up zero that would
             # step the attitude loop's damping at every gap), else none.
@@ -619,4 +638,3 @@ class RigidBodyFilter:
         blind = max(0.0, self._t - self.last_fused_t)
         return Estimate(self._t, state, math.sqrt(pp) + 0.5 * GRAVITY * sigma_theta * blind * blind, math.sqrt(vv),
                         sigma_theta, np.array(self._b), np.array(self._d))
-

@@ -101,6 +101,8 @@ class GyroAgreement:
         if ages is not None and len(ages) == n:
             fresh = ages <= stale_s  # NaN compares False: stale
             fresh = None if fresh.all() else fresh
+        elif not age <= stale_s:  # no ages of their own: all as old as ``age`` (a gap is not a frozen reading)
+            fresh = np.zeros(n, dtype=bool)
         # A sum that is a number says that every reading is one (the common case, on every control period).
         finite = None if math.isfinite(sum(map(sum, rates))) else np.isfinite(module_gyros).all(axis=1)
         frozen = self._frozen(t, rates, fresh)
@@ -126,7 +128,8 @@ class GyroAgreement:
             keep &= fresh
         if not keep.any():
             # Frozen readings were flown on until they were seen to be: the rate is unknown since they froze.
-            lost = min([self._used_t] + [since for since in self._same_since if since is not None])
+            lost = min([self._used_t] + [since for i, since in enumerate(self._same_since)
+                                         if since is not None and i != self.excluded])
             self.lost_since = lost
             return np.full(3, math.nan), t - lost
         used_age = age if ages is None or len(ages) != n else float(ages[keep].max())
@@ -142,8 +145,12 @@ class GyroAgreement:
         t_before, before = previous
         same, limit, out = self._same_since, self.settings.frozen_s, None
         for i, (now, then) in enumerate(zip(rates, before, strict=True)):
-            if now != then or (fresh is not None and not fresh[i]):  # NaN differs from NaN: not "frozen"
+            if now != then:  # NaN differs from NaN: not "frozen"
                 same[i] = None
+                continue
+            if fresh is not None and not fresh[i]:
+                # A stale reading pauses the count, never ends it: a stuck gyro whose packets pause for 50 ms comes
+                # back as stuck (counted afresh, it was flown on for another 40 ms: an 11 deg phantom turn).
                 continue
             if same[i] is None:
                 same[i] = t_before

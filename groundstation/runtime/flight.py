@@ -372,6 +372,7 @@ class Flight:
         self._cos_tilt = np.cos(np.radians(self.policy.max_tilt_deg))
         self._stats: LoopStats | None = None
         self._failed_modules: set[int] = set()
+        """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
         self._disturbed_since: float | None = None
         """Flight time since which the disturbance has been beyond ``max_disturbance_mps2``, s."""
         self._reference_attitude: tuple[float, object, np.ndarray] | None = None
@@ -379,7 +380,8 @@ class Flight:
         self._mocap_fault_named = ""
         """The kind of mocap fault last seen (its text without the counts)."""
         self._gyro_fault_named = False
-        """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
+        self._gyros_lost_at: float | None = None
+        """Since when no gyro has been usable (as :attr:`GyroAgreement.lost_since` said last period), s."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _log_time(self, t: float) -> float:
@@ -408,8 +410,10 @@ class Flight:
         if gyro is not None and len(telemetry.module_gyros):
             gyro, age = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now),
                                         telemetry.module_gyro_ages_s, age, est.settings.gyro_stale_s)
-            if self.gyros.lost_since is not None:
-                est.gyros_lost()
+            lost = self.gyros.lost_since
+            if lost is not None and self._gyros_lost_at is None:  # found now: once (est.gyros_lost)
+                est.gyros_lost(lost)
+            self._gyros_lost_at = lost
         est.predict(now, gyro, age)
         for m in self.pose.measurements():
             est.correct(m)
@@ -798,6 +802,11 @@ class Flight:
                 self.reason = self.requests.abort_reason("before arming")
                 self._set_phase(0.0, Phase.ABORTED, self.reason)
                 return self._stats
+            self._estimate(self.backend.telemetry())  # the gyros judged before anything is armed
+            if self.gyros.fault:  # a failed IMU on the ground is no reason to take off (NaN: at once; frozen, 40 ms)
+                self.reason = f"gyro fault before take-off: {self.gyros.fault}"
+                self._set_phase(0.0, Phase.ABORTED, self.reason)
+                return self._stats
             try:
                 self.backend.arm()
             except ArmingError as exc:
@@ -806,11 +815,6 @@ class Flight:
                 self._set_phase(0.0, Phase.ABORTED, f"arming failed: {exc}")
                 return self._stats
             self._estimate(self.backend.telemetry())
-            if self.gyros.fault:  # nothing spun yet: a failed IMU on the ground is no reason to take off
-                self.backend.disarm()
-                self.reason = f"gyro fault before take-off: {self.gyros.fault}"
-                self._set_phase(0.0, Phase.ABORTED, self.reason)
-                return self._stats
             with collector_paused():
                 stats = run_fixed_rate(step, rate_hz, clock, stats=self._stats, between=between)
         except BaseException as exc:

@@ -205,7 +205,7 @@ class GainsSection:
     """At least 0.3 Hz: slower, a take-off of seconds is not followed (at 1e-9 Hz one armed, and its landing time ran
     out while it still climbed)."""
     position_zeta: float = Field(Gains.position_zeta, ge=0.3)
-    """At least 0.3: less damped, a step overshoots by more than a third."""
+    """At least 0.3: less damped, a step overshoots by more than 37 %."""
     attitude_hz: float = Field(Gains.attitude_hz, ge=1.0)
     """At least 1 Hz: slower, the attitude cannot follow the lean the position loop asks."""
     attitude_zeta: float = Field(Gains.attitude_zeta, gt=0)

@@ -626,7 +626,7 @@ def _install_signals(requests: Requests, started: threading.Event):
         if signum == signal.SIGHUP:
             forget_lost_terminal()  # every later write to it would fail (EIO) and end the command in a traceback
             hung_up.append(True)
-        if hung_up and requests.land.is_set() and signum not in (signal.SIGINT, signal.SIGTSTP):
+        if hung_up and requests.land.is_set() and signum not in (signal.SIGINT, signal.SIGTSTP, signal.SIGQUIT):
             return  # a session ending sends SIGTERM after the hang-up (systemd-logind): the landing goes on
         if requests.land.is_set() and signum in NEVER_A_STOP:
             return  # the landing goes on: repeated by a tool (log rotation, a timer), not asked by an operator

@@ -291,7 +291,7 @@ def f_gyros_nan_then_a_pose_gap(cli, tmp_path):
 
 
 @estimate_fault("every module's gyro NaN before take-off (dry run)",
-                "aborted before anything spins: the reason names the gyros; exit 1")
+                "aborted before arming: the reason names the gyros; exit 1")
 def f_gyros_nan_before_takeoff(cli, tmp_path):
     log = tmp_path / "ground.mcap"
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7572"), duration=4.0, log_path=log,
