@@ -41,7 +41,7 @@ from groundstation.control.geometric import Gains, control, reference_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
-from groundstation.control.trajectory import FlightPlan, Landing, roll_pitch_yaw
+from groundstation.control.trajectory import MAX_LANDING_MPS, FlightPlan, Landing, roll_pitch_yaw
 from groundstation.errors import ArmingError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.gyro_check import GyroAgreement
@@ -57,13 +57,9 @@ from groundstation.runtime.loop import (
 )
 from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 
-MAX_LANDING_MPS = 0.8
-"""The fastest mean descent of the plan's landing (its height over ``trajectory.landing_s``), m/s: the quintic
-peaks at 1.875 times that and the position loop trails it. Measured in the dry run, the toy V's 0.76 m with 18 %
-more mass than its model says: in 0.86 s (0.89 m/s) touchdown at 1.64 m/s, in 1.0 s (0.76 m/s) 1.39 m/s (0.92
-without the extra mass), in 1.3 s 0.99 m/s, in 1.7 s 0.71 m/s."""
 MAX_BLIND_DESCENT_MPS = 0.6
-"""...and of a blind landing (``failsafe.blind_descent_mps``), m/s: flown on the estimate alone, it trails more.
+"""The fastest mean descent of a blind landing (``failsafe.blind_descent_mps``; planned ones:
+:data:`~groundstation.control.trajectory.MAX_LANDING_MPS`), m/s: flown on the estimate alone, it trails more.
 Measured from 1 m: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s 1.58 m/s; at 2-5 m/s the rotors went to zero
 and it tipped 46-48 deg."""
 GC_INTERVAL_S = 1.0
@@ -450,7 +446,7 @@ class Flight:
             ref = Setpoint(state.position, state.velocity, np.zeros(3), ref.rotation)
         z = float(self.plan.ground[2]) - (BLIND_LANDING_DEPTH if blind else LANDING_DEPTH)
         height, sinking = float(ref.position[2]) - z, -float(ref.velocity[2])
-        duration = self.plan.landing_s
+        duration = max(self.plan.landing_s, height / MAX_LANDING_MPS)  # never faster than the plan's own landing
         if blind:
             duration = max(0.5, height / self.policy.blind_descent_mps)
             self.estimator.set_ground(float(self.plan.ground[2]))

@@ -193,7 +193,8 @@ class TrajectorySection:
     settle_s: float = Field(1.5, ge=0, le=MAX_DURATION_S)
     """Settling before tracking (the attitude target blended to the trajectory's) and holding after it, s each."""
     landing_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
-    """Landing time, s (at most an hour)."""
+    """Landing time, s (at most an hour; at least the height over 0.8 m/s: a shorter one is stretched to that,
+    ``trajectory.MAX_LANDING_MPS``)."""
 
 
 @dataclass(frozen=True, config=_STRICT)

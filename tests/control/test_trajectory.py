@@ -3,6 +3,7 @@ import pytest
 
 from groundstation.control.trajectory import (
     LANDING_BRAKE,
+    MAX_LANDING_MPS,
     Attitude,
     Circle,
     Figure8,
@@ -81,3 +82,17 @@ def test_a_landing_goes_on_from_the_motion_and_comes_to_rest(velocity, accelerat
     speed = float(np.linalg.norm(velocity[:2]))
     reach = float(np.linalg.norm(np.subtract(landing.end[:2], (0.1, 0.2))))
     assert reach <= 0.75 * speed ** 2 / LANDING_BRAKE + 0.3 * speed + 0.1 * float(np.linalg.norm(acceleration[:2]))
+
+
+@pytest.mark.parametrize("landing_s", [0.5, 1.0, 3.0])
+def test_a_landing_never_descends_faster_than_its_bound(landing_s):
+    """The plan's landing lasts ``landing_s``, or its height over MAX_LANDING_MPS when that is longer (0.86 s from
+    0.76 m touched down at 1.64 m/s with an unknown payload): its phase, its reference and its bounds alike."""
+    plan = FlightPlan((0.0, 0.0, 0.05), Hover((0.0, 0.0, 1.0), 2.0), takeoff_s=1.0, settle_s=0.5, landing_s=landing_s)
+    drop = 1.0 - (0.05 - 0.02)
+    expected = max(landing_s, drop / MAX_LANDING_MPS)
+    name, start, end = plan.phases[-1]
+    assert end - start == pytest.approx(expected)
+    assert plan(end).position[2] == pytest.approx(0.03) and plan(start).position[2] == pytest.approx(1.0)
+    mean = drop / (end - start)
+    assert mean <= MAX_LANDING_MPS + 1e-12 and (mean == pytest.approx(MAX_LANDING_MPS)) == (landing_s < 1.2)

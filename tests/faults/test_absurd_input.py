@@ -39,8 +39,6 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
     ("figure8_period_1e7_s", "period = 1e7", {"period = 8.0": "period = 1e7"}, "trajectory.period"),
     ("takeoff_inf", "takeoff_s = inf", {"roll_deg = 0.0": "roll_deg = 0.0\ntakeoff_s = inf"},
      "trajectory.takeoff_s: Input should be a finite number"),
-    ("landing_0.9_s", "landing_s = 0.9 from 1 m (0.85 m/s: a hard touchdown)",
-     {"roll_deg = 0.0": "roll_deg = 0.0\nlanding_s = 0.9"}, "trajectory", "trajectory.landing_s = 0.9 s"),
     ("blind_descent_1_mps", "failsafe.blind_descent_mps = 1 (touched down at 1.6 m/s)",
      {"max_tilt_deg = 75": "max_tilt_deg = 75\nblind_descent_mps = 1.0"}, "failsafe.blind_descent_mps"),
     ("position_gain_1e-9_hz", "position_hz = 1e-9", {"position_hz = 0.8": "position_hz = 1e-9"},

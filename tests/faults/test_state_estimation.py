@@ -23,6 +23,10 @@ from tests.faults.test_process_faults import _replayed
 from tests.peers import ROOT, peer_process
 from tests.runtime.test_fly import SETTLE_S, TRACK_START_S, config_with, read_log, sitl_config
 
+LANDING = {"duration = 16.0\n": "duration = 16.0\nlanding_s = 1.5\n"}
+"""The rows that judge a landing (upright, on the ground) land in 1.5 s, not the test flights' 1 s: one gyro or
+no mocap on a 1 m/s descent tipped the V 16 deg."""
+
 PEER_PORT = 19920
 MOCAP_PORT, RELAY_PORT = 7533, 7534
 
@@ -111,7 +115,7 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
 def f_mocap_blackout_1s(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "blackout.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7535"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7535", **LANDING), duration=4.0, log_path=log,
               faults=faults,
               on_period=lambda t: setattr(faults, "mocap_paused", TRACK_START_S + 2.5 <= t < TRACK_START_S + 3.5))
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
@@ -129,7 +133,7 @@ def _bridge_restarted(tmp_path, port: int, keyed: bool):
     its place 1 s later, as a restarted bridge; (result, log, the last /mocap/stats)."""
     faults = Faults()
     mocap = "latency_s = 0.005" + (f'\nkey_file = "{write_key_file(tmp_path / "mocap.key")}"' if keyed else "")
-    cfg = config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}", **{"latency_s = 0.005": mocap})
+    cfg = config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}", **LANDING, **{"latency_s = 0.005": mocap})
     start = TRACK_START_S + 2.5
 
     def on_period(t):
@@ -177,7 +181,7 @@ def _faulted_in_the_plans_landing(tmp_path, port: int, name: str):
     faults = Faults()
     landing_starts = TRACK_START_S + 2.0 + SETTLE_S
     log = tmp_path / f"{name}.mcap"
-    res = fly(config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}"), duration=2.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}", **LANDING), duration=2.0, log_path=log,
               faults=faults, on_period=lambda t: setattr(faults, name, t >= landing_starts + 0.3))
     return res, log
 
@@ -210,7 +214,7 @@ def f_shove_10n(cli, tmp_path):
     faults = Faults()
     at = TRACK_START_S + 1.5
     log = tmp_path / "shove.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7542"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7542", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=lambda t: setattr(faults, "push_n", (10.0, 0.0, 0.0) if at <= t < at + 0.1
                                                          else None))
     assert res.phase == "done", res.reason
@@ -224,7 +228,7 @@ def f_mocap_frozen_pose(cli, tmp_path):
     faults = Faults()
     on_period, frozen = _injected(faults, "mocap_frozen", True)
     log = tmp_path / "frozen.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("mocap fault: every pose rejected for ")
     assert "a frozen stream" in res.reason
@@ -240,7 +244,7 @@ def f_gyro_failed(cli, tmp_path):
     faults = Faults()
     on_period, failed = _injected(faults, "gyro_failed", 1)
     log = tmp_path / "gyro.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("gyro fault: module 1's gyro disagrees with the other's")
     assert "left out of the body rate" in res.reason
@@ -284,8 +288,8 @@ def f_gyros_nan_then_a_pose_gap(cli, tmp_path):
         faults.mocap_paused = at + 0.3 <= t < at + 0.5
 
     log = tmp_path / "gap.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7571"), duration=4.0, log_path=log, faults=faults,
-              on_period=on_period)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7571", **LANDING), duration=4.0, log_path=log,
+              faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("gyro fault: every module's gyro is not a number")
     _touched_down_upright_within(log, 20.0)
 
@@ -294,7 +298,7 @@ def f_gyros_nan_then_a_pose_gap(cli, tmp_path):
                 "aborted before arming: the reason names the gyros; exit 1")
 def f_gyros_nan_before_takeoff(cli, tmp_path):
     log = tmp_path / "ground.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7572"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7572", **LANDING), duration=4.0, log_path=log,
               faults=Faults(gyros_stuck=float("nan")))
     assert res.phase == "aborted" and res.reason == ("gyro fault before take-off: every module's gyro is not a "
                                                      "number: no body rate, the attitude from the poses alone")
@@ -308,7 +312,7 @@ def _gyros_failed_alike(tmp_path, value: float, what: str, at: float = TRACK_STA
     faults = Faults()
     on_period, failed = _injected(faults, "gyros_stuck", value, at)
     log = tmp_path / "gyros.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7569"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7569", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith(f"gyro fault: every module's gyro {what}"), res.reason
     assert res.reason.endswith("no body rate, the attitude from the poses alone")

@@ -32,10 +32,10 @@ def read_log(path):
     return counts, meta, logs, motors
 
 
-TAKEOFF_S, SETTLE_S, LANDING_S = 1.0, 0.25, 1.5
+TAKEOFF_S, SETTLE_S, LANDING_S = 1.0, 0.25, 1.0
 """The test flights' phases (s), against the shipped 3, 1.5 and 3 s: the quintic take-off to 1 m then peaks at
-5.8 m/s^2 (the V hovers at 0.38 u_max: it has the thrust), and the suite flies ~100 times. The landing descends
-up to 1.15 m (where the figure-8 ends), within the 0.8 m/s mean a landing may have (``MAX_LANDING_MPS``)."""
+5.8 m/s^2 (the V hovers at 0.38 u_max: it has the thrust), and the suite flies ~100 times. A landing from higher
+than 0.8 m takes longer (``trajectory.MAX_LANDING_MPS``)."""
 TRACK_START_S = TAKEOFF_S + SETTLE_S
 """Flight time at which tracking starts in a test flight, s (faults injected "in tracking" are timed from it)."""
 
