@@ -143,6 +143,10 @@ class _Attempt:
     whole timeout took 25 s a module), nor when what answered is not a Crazyflie."""
     unparsed: int = 0
     """Packets that broke cflib's callbacks on this attempt."""
+    slow: bool = False
+    """The module answered but its parameters did not all come: one more attempt is worth it (on a link losing 5 %
+    a table-of-contents download can stall past the timeout; it failed the fault table's lossy-link row once in
+    four suite runs), not five."""
 
 
 def _connect(uri: str, timeout: float, cache: str | None, unparsed: _Unparsed) -> _Attempt:
@@ -175,7 +179,7 @@ def _connect(uri: str, timeout: float, cache: str | None, unparsed: _Unparsed) -
         return _Attempt(None, failure[0], again=not foreign, unparsed=foreign)
     if answered.is_set():
         return _Attempt(None, f"it answered, but its parameters did not arrive within {timeout:g} s",
-                        unparsed=foreign)
+                        unparsed=foreign, slow=True)
     return _Attempt(None, f"no answer within {FIRST_ANSWER_S:g} s", again=True)
 
 
@@ -236,11 +240,12 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
         toc_cache.mkdir(parents=True, exist_ok=True)
         cache = str(toc_cache)
     with _counting_unparsed() as unparsed:
-        tried = 0
+        tried, slow = 0, 0
         while tried < ATTEMPTS:
             tried += 1
             attempt = _connect(uri, timeout, cache, unparsed)
-            if not attempt.again:
+            slow += attempt.slow
+            if not (attempt.again or (attempt.slow and slow < 2)):
                 break
     cf, why = attempt.cf, attempt.why
     if cf is None:
