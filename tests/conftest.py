@@ -1,5 +1,6 @@
 """Test configuration: the repository root is importable so tests can use ``benchmarks`` as an oracle."""
 
+import os
 import sys
 from pathlib import Path
 
@@ -22,3 +23,38 @@ def cli(capsys):
         return ex.value.code, out, err
 
     return run
+
+
+def _workers_wanted(config) -> bool:
+    return bool(getattr(config.option, "numprocesses", None)) and config.option.dist != "no"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+    """Parallel workers (``-n``) need a loopback each (``own_network.py``); where this machine cannot give them one,
+    say so and run in this process, not in workers that would take each other's ports and links."""
+    from tests.own_network import available
+
+    if _workers_wanted(config) and not available():
+        config.issue_config_time_warning(pytest.PytestConfigWarning(
+            "-n ignored: this machine gives the test workers no network namespace of their own (needs root or "
+            "unprivileged user namespaces), and they share fixed loopback ports: running in one process"), 2)
+        config.option.numprocesses, config.option.dist, config.option.tx = 0, "no", []
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _own_link_locks(tmp_path_factory):
+    """In a parallel worker, the links' host locks (``$XDG_RUNTIME_DIR/groundstation-links``) in a directory of its
+    own: both workers fly links named alike (``udp://127.0.0.1:19850``), each on its own loopback."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ["XDG_RUNTIME_DIR"] = str(tmp_path_factory.mktemp("runtime"))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_setupnodes(config, specs):
+    """Start every worker through ``own_network.py``: a loopback and link locks of its own."""
+    import shlex
+
+    wrapper = Path(__file__).with_name("own_network.py")
+    for spec in specs:
+        spec.python = f"{shlex.quote(sys.executable)} {shlex.quote(str(wrapper))}"

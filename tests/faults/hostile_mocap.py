@@ -44,6 +44,9 @@ def main(argv: list[str] | None = None) -> int:
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
+    # Listening on loopback, not Zenoh's default (every address, of which it announces only non-loopback ones): the
+    # genuine publisher, told of us by the ground station, connects here even on a host with loopback alone.
+    cfg.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     cfg.insert_json5("connect/retry", '{period_init_ms: 50, period_max_ms: 50, period_increase_factor: 1}')
     session = zenoh.open(cfg)
     captured: list[zenoh.Sample] = []

@@ -45,7 +45,8 @@ def test_replay_reproduces_the_flights_own_figures(sim_flight):
         assert same(a, b), (key, a, b)
     assert r.metrics.phase == "done" and r.metrics.overruns == res.metrics.loop.overruns
     assert [p for _, p in r.timeline] == ["takeoff", "settle", "track", "hold", "landing", "done"]
-    assert [text for _, _, text in r.events if "->" in text] == [text for _, _, text in res.events]
+    flown = [text for _, _, text in res.events]  # the phase changes (and a "loop stalled" on a loaded machine)
+    assert [text for _, _, text in r.events if text in flown] == flown and any("->" in text for text in flown)
 
 
 def test_the_estimators_figures_recomputed_from_the_records(sim_flight):
