@@ -80,7 +80,7 @@ class GyroAgreement:
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
              referee: Callable[[], np.ndarray | None] | None = None, ages: np.ndarray | None = None,
-             age: float = 0.0, stale_s: float = math.inf) -> tuple[np.ndarray, float]:
+             age: float = 0.0, stale_s: float = math.inf, touching: bool = False) -> tuple[np.ndarray, float]:
         """The body rate to fly on at ``t`` (s) and how old it is (s): ``mean`` (the backend's, of all modules,
         ``age`` old) unless a module was left out, a reading is unusable or is stale; judges ``module_gyros``
         ((n, 3), rad/s, body frame) on the way. ``ages``: each module's reading's age, s (None or empty: all
@@ -88,8 +88,11 @@ class GyroAgreement:
         and only the fresh readings are judged, against each other (two at least): a packet late by tens of ms
         during a turn is old news, not a loose IMU, and a module taken out of the flight (its age infinite) leaves
         the others judged. ``referee``: the body rate from the mocap poses (rad/s; None: none), which picks the
-        wrong one of two; asked only then (not on the control loop's every period). With no usable reading: NaN,
-        and the time since the last one flown on (:attr:`lost_since`)."""
+        wrong one of two; asked only then (not on the control loop's every period). ``touching``: the assembly may
+        be touching the ground, whose contacts kick the body rate for a reading or two, which modules sampling a few
+        ms apart read differently (measured at a touchdown: 248 deg/s apart for one reading): their disagreement is
+        not judged then, unusable readings still are. With no usable reading: NaN, and the time since the last one
+        flown on (:attr:`lost_since`)."""
         n = len(module_gyros)
         if n == 0:
             return mean, age
@@ -111,6 +114,8 @@ class GyroAgreement:
             bad = None if usable is None else ~usable if fresh is None else ~usable & fresh
             if bad is not None and bad.any():
                 self._name_unusable(t, rates, bad, usable if fresh is None else usable & fresh, finite)
+            elif touching:
+                self._since, self._excess = None, 0.0
             elif n < 2:
                 pass
             elif fresh is None:

@@ -297,6 +297,9 @@ DISTURBANCE_LANDING_S = 0.6
 """A landing begun (or under way) while the disturbance is beyond its bound stops the motors once it has lasted this
 long, s."""
 NEAR_GROUND_M = 0.3
+GROUND_CONTACT_M = 0.02
+"""An estimate this close above the ground it took off from (or below it) may touch it, m: the gyros' disagreement
+is not judged there (:meth:`GyroAgreement.rate`)."""
 """An estimate this close above the ground has nothing to land from, m."""
 TURN_RATE_MAX_GAP_S = 0.05
 """The reference's turn rate is taken over the step from the previous period when no longer than this, s."""
@@ -378,6 +381,8 @@ class Flight:
         self._gyro_fault_named = False
         self._gyros_lost_at: float | None = None
         """Since when no gyro has been usable (as :attr:`GyroAgreement.lost_since` said last period), s."""
+        self._height = 0.0
+        """The estimate's height above the ground it took off from, last period, m (on it before the first)."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _log_time(self, t: float) -> float:
@@ -405,7 +410,8 @@ class Flight:
         age = telemetry.gyro_age_s
         if gyro is not None and len(telemetry.module_gyros):
             gyro, age = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now),
-                                        telemetry.module_gyro_ages_s, age, est.settings.gyro_stale_s)
+                                        telemetry.module_gyro_ages_s, age, est.settings.gyro_stale_s,
+                                        touching=self._height < GROUND_CONTACT_M)
             lost = self.gyros.lost_since
             if lost is not None and self._gyros_lost_at is None:  # found now: once (est.gyros_lost)
                 est.gyros_lost(lost)
@@ -413,7 +419,10 @@ class Flight:
         est.predict(now, gyro, age)
         for m in self.pose.measurements():
             est.correct(m)
-        return est.state(), est.age(now)
+        state = est.state()
+        if state is not None:
+            self._height = float(state.position[2]) - float(self.plan.ground[2])
+        return state, est.age(now)
 
     def integrity(self) -> MocapIntegrity:
         """The pose stream's counters, the estimator's rejections included."""

@@ -580,7 +580,7 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, to_log: Callable[[fl
     switch = sys.getswitchinterval()
     sys.setswitchinterval(GIL_SWITCH_S)
     try:
-        with realtime_priority(cfg.realtime_priority) as rt:
+        with realtime_priority(cfg.realtime_priority, (log.writer_pid,)) as rt:
             if cfg.realtime_priority and not rt:
                 log.event("warning", f"real-time priority {cfg.realtime_priority} not permitted (needs "
                           "CAP_SYS_NICE or an rtprio limit): the loop runs at normal priority",

@@ -102,9 +102,10 @@ p50 1.8 ms against 0.5 idle) on a Crazyflie flight."""
 
 
 @contextmanager
-def realtime_priority(priority: int) -> Iterator[bool]:
+def realtime_priority(priority: int, helpers: tuple[int, ...] = ()) -> Iterator[bool]:
     """Run the calling thread under ``SCHED_FIFO`` at ``priority`` (1..99) for the block, and the process's other
-    threads at :data:`HELPER_NICE`; yields whether it did.
+    threads, and those of the processes ``helpers`` (pids: the log writer), at :data:`HELPER_NICE`; yields whether
+    it did.
 
     A real-time thread is not preempted by the process's other threads or by ordinary processes, which is what
     keeps a 4 ms period on a busy 2-core machine; the others outrank ordinary processes so that what holds the GIL
@@ -123,29 +124,33 @@ def realtime_priority(priority: int) -> Iterator[bool]:
     except (PermissionError, OSError):
         yield False
         return
-    reniced: list[tuple[int, int]] = []
+    reniced: list[tuple[str, int, int]] = []
     try:
-        reniced = _renice_other_threads(HELPER_NICE)
+        # The log writer too: at nice 0 beside two flights' loops and helpers (the test suite's two workers), it
+        # took none of its input for 2 s, and the flight called it hung.
+        for pid in ("self", *map(str, helpers)):
+            reniced += _renice_threads(pid, HELPER_NICE)
         yield True
     finally:
-        for tid, nice in reniced:
+        for pid, tid, nice in reniced:
             with suppress(OSError):  # the thread has ended meanwhile
-                if os.path.exists(f"/proc/self/task/{tid}"):  # not an id the kernel has given to another
+                if os.path.exists(f"/proc/{pid}/task/{tid}"):  # not an id the kernel has given to another
                     os.setpriority(os.PRIO_PROCESS, tid, nice)
         os.sched_setscheduler(0, old_policy, old_param)
 
 
-def _renice_other_threads(nice: int) -> list[tuple[int, int]]:
-    """Set every other thread of this process to ``nice`` (those whose nice is higher); returns (thread id, old
-    nice) of each changed."""
+def _renice_threads(pid: str, nice: int) -> list[tuple[str, int, int]]:
+    """Set every thread of process ``pid`` ("self": this one, but for the calling thread) to ``nice`` (those whose
+    nice is higher); returns (pid, thread id, old nice) of each changed."""
     me, changed = threading.get_native_id(), []
-    for entry in os.listdir("/proc/self/task"):
-        tid = int(entry)
-        with suppress(OSError):  # ended meanwhile, or not permitted
-            old = os.getpriority(os.PRIO_PROCESS, tid)
-            if tid != me and old > nice:
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
-                changed.append((tid, old))
+    with suppress(OSError):  # the process has ended
+        for entry in os.listdir(f"/proc/{pid}/task"):
+            tid = int(entry)
+            with suppress(OSError):  # ended meanwhile, or not permitted
+                old = os.getpriority(os.PRIO_PROCESS, tid)
+                if tid != me and old > nice:
+                    os.setpriority(os.PRIO_PROCESS, tid, nice)
+                    changed.append((pid, tid, old))
     return changed
 
 

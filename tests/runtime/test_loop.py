@@ -1,5 +1,7 @@
 import gc
 import os
+import subprocess
+import sys
 import threading
 import time
 
@@ -91,14 +93,18 @@ def test_realtime_priority_is_restored():
     wake = threading.Event()
     helper = threading.Thread(target=wake.wait, daemon=True)  # a link receiver, say
     helper.start()
+    writer = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # the log writer, say
     try:
         helper_nice = os.getpriority(os.PRIO_PROCESS, helper.native_id)
-        with realtime_priority(10) as rt:
+        writer_nice = os.getpriority(os.PRIO_PROCESS, writer.pid)
+        with realtime_priority(10, (writer.pid,)) as rt:
             policy = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK
             assert (policy == os.SCHED_FIFO) == rt
-            # the other threads outrank ordinary processes meanwhile (where permitted)
+            # the other threads and the helper processes outrank ordinary processes meanwhile (where permitted)
             assert os.getpriority(os.PRIO_PROCESS, helper.native_id) == (min(HELPER_NICE, helper_nice) if rt else
                                                                          helper_nice)
+            assert os.getpriority(os.PRIO_PROCESS, writer.pid) == (min(HELPER_NICE, writer_nice) if rt else
+                                                                   writer_nice)
             started = []  # a thread started from the real-time one (a hook's) does not inherit the policy
             child = threading.Thread(target=lambda: started.append(os.sched_getscheduler(0)))
             child.start()
@@ -106,8 +112,11 @@ def test_realtime_priority_is_restored():
             assert started == [os.SCHED_OTHER]
         assert os.sched_getscheduler(0) == before
         assert os.getpriority(os.PRIO_PROCESS, helper.native_id) == helper_nice
+        assert os.getpriority(os.PRIO_PROCESS, writer.pid) == writer_nice
     finally:
         wake.set()
         helper.join()
+        writer.kill()
+        writer.wait()
     with realtime_priority(0) as rt:
         assert rt is False and os.sched_getscheduler(0) == before
