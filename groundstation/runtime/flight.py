@@ -298,8 +298,9 @@ DISTURBANCE_LANDING_S = 0.6
 long, s."""
 NEAR_GROUND_M = 0.3
 GROUND_CONTACT_M = 0.02
-"""An estimate this close above the ground it took off from (or below it) may touch it, m: the gyros' disagreement
-is not judged there (:meth:`GyroAgreement.rate`)."""
+"""An estimate this close above the ground it took off from (or below it) may touch it, m: in a landing the gyros'
+disagreement is not judged there (:meth:`GyroAgreement.rate`). Before and in the take-off it is: at rest nothing
+kicks the body rate, and a gyro that reads wrong must be found before the assembly leaves the ground."""
 """An estimate this close above the ground has nothing to land from, m."""
 TURN_RATE_MAX_GAP_S = 0.05
 """The reference's turn rate is taken over the step from the previous period when no longer than this, s."""
@@ -411,7 +412,7 @@ class Flight:
         if gyro is not None and len(telemetry.module_gyros):
             gyro, age = self.gyros.rate(now, telemetry.module_gyros, gyro, lambda: est.pose_rate(now),
                                         telemetry.module_gyro_ages_s, age, est.settings.gyro_stale_s,
-                                        touching=self._height < GROUND_CONTACT_M)
+                                        touching=self.phase == Phase.LANDING and self._height < GROUND_CONTACT_M)
             lost = self.gyros.lost_since
             if lost is not None and self._gyros_lost_at is None:  # found now: once (est.gyros_lost)
                 est.gyros_lost(lost)

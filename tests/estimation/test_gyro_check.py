@@ -229,8 +229,10 @@ def test_a_reading_repeated_to_the_last_bit_is_frozen_and_left_out():
         if t < 0.1:
             assert agreement.fault == ""
     assert agreement.excluded == 1 and agreement.lost_since is None
-    assert agreement.fault.startswith("module 1's gyro has read (0.0, 17.2, 0.0) deg/s to the last bit for "), \
+    stuck_deg = ", ".join(f"{x:.1f}" for x in np.degrees(stuck))  # its noise may round to -0.0
+    assert agreement.fault.startswith(f"module 1's gyro has read ({stuck_deg}) deg/s to the last bit for "), \
         agreement.fault
+    assert stuck_deg.replace("-0.0", "0.0") == "0.0, 17.2, 0.0"
     lasted = float(agreement.fault.split(" for ")[1].split(" ms")[0])
     assert 40 <= lasted <= 44
     np.testing.assert_allclose(rate, good, atol=5 * NOISE)
