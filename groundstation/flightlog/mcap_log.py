@@ -67,7 +67,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.errors import UsageError
-from groundstation.flightlog.salvage import LogScan
+from groundstation.flightlog.salvage import MAGIC, LogScan
 from groundstation.flightlog.scene import module_transforms, scene
 from groundstation.flightlog.schemas import schema_of
 from groundstation.loop_activity import LoopActivity
@@ -588,7 +588,7 @@ class _Writer:
 
     def __init__(self, path: str, metadata: dict[str, str], live_port: int | None = None) -> None:
         # The file was claimed (:func:`claim`) or is new: an existing log is never overwritten.
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
         if os.fstat(fd).st_size:
             os.close(fd)
             raise FileExistsError(f"{path} is not empty: a flight log is never overwritten")
@@ -696,7 +696,14 @@ class _Writer:
             self._add(topic_, schema, payload, ns)
 
     def flush(self) -> None:
+        """Flush, then check that the file is still ours: truncated in flight (``truncate``, ``> file``, a cleanup
+        script), it went on growing past a hole where its start had been, a flight reported complete whose log no
+        reader opens. Raises then, so the flight hears of it (``on_log_failure``) and its summary says so."""
         self._fh.flush()
+        fd = self._fh.fileno()
+        if os.pread(fd, len(MAGIC), 0) != MAGIC:
+            raise OSError(f"the log file was truncated or overwritten by another process (its first "
+                          f"{len(MAGIC)} bytes are no longer MCAP's): what was written before is lost")
 
     def serve(self) -> None:
         """The live view's share of the writer's thread (called after every batch, and every :data:`POLL_S` without

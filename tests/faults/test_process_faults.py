@@ -471,6 +471,28 @@ def f_log_directory_removed_in_flight(cli, tmp_path):
     assert not res.nominal and res.log_error.endswith("was removed or renamed during the flight"), res.log_error
 
 
+@process_fault("the log truncated to nothing in flight (`truncate -s 0`, `> file`, a cleanup script)",
+               "the writer finds its file's start gone within a second and stops; the flight acts on the failed "
+               "log (`on_log_failure`) and its result names it; never reported complete")
+def f_log_truncated_in_flight(cli, tmp_path):
+    """Before: the writer went on at its offset behind a hole, `fly` said done with no log error, exit 0, and
+    neither `replay` nor `log recover` could open the file."""
+    log = tmp_path / "cut.mcap"
+    cut = []
+
+    def truncate(t):
+        if t > 1.5 and not cut:
+            cut.append(t)
+            os.truncate(log, 0)
+
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), duration=2.0, log_path=log, on_period=truncate)
+    assert cut and not res.nominal and "truncated or overwritten by another process" in (res.log_error or ""), \
+        (res.phase, res.reason, res.log_error)
+    assert res.phase == "done" and res.reason.startswith("log writer failed: OSError: the log file was truncated")
+    named = [t for t, _, text in res.events if text.startswith("log writer failed")]
+    assert named and named[0] - cut[0] < 1.5  # the writer checks at its once-a-second flush
+
+
 # -- long work ---------------------------------------------------------------------------------------------------
 @process_fault("Ctrl-C (SIGINT to the process group, as a terminal sends it) while `enumerate 13` runs level 12 "
                "(seconds of compiled kernels that never look at signals)",
