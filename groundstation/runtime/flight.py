@@ -384,6 +384,8 @@ class Flight:
         """Since when no gyro has been usable (as :attr:`GyroAgreement.lost_since` said last period), s."""
         self._height = 0.0
         """The estimate's height above the ground it took off from, last period, m (on it before the first)."""
+        self._poses_untrusted = False
+        """No pose is fused any more: the stream carried two sequences under one source id (a copied id)."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _log_time(self, t: float) -> float:
@@ -418,7 +420,8 @@ class Flight:
                 est.gyros_lost(lost)
             self._gyros_lost_at = lost
         est.predict(now, gyro, age)
-        for m in self.pose.measurements():
+        poses = self.pose.measurements()  # drained even when untrusted: they must not pile up
+        for m in () if self._poses_untrusted else poses:
             est.correct(m)
         state = est.state()
         if state is not None:
@@ -522,10 +525,14 @@ class Flight:
                 self._emergency(t, why)
                 return False
             kind = fault.split(" (")[0]  # its counts in brackets change every period
+            # Two sequences under one source id: without a key nothing tells the forged samples from the genuine
+            # ones, so none is fused from then on and the landing is blind (landing on "the stream's own rate", a
+            # forger dragging the pose down held the estimate on the ground 0.5 m up: "landed", motors off).
+            self._poses_untrusted = self._poses_untrusted or kind.startswith("two sequences under one source id")
             if self.phase.airborne or (self.phase == Phase.LANDING and kind != self._mocap_fault_named):
                 # The estimator's fault: every pose rejected, so landing on the estimate. A landing under way (the
                 # plan's, or on stale poses) goes on, blind if need be, named once per kind of fault.
-                self._begin_landing(t, state, why, blind=bool(est.fault()))
+                self._begin_landing(t, state, why, blind=bool(est.fault()) or self._poses_untrusted)
             self._mocap_fault_named = kind
         if self.gyros.fault and not self._gyro_fault_named and state is not None and \
                 (self.phase.airborne or self.phase == Phase.LANDING):

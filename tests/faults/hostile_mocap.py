@@ -2,17 +2,18 @@
 
     python -m tests.faults.hostile_mocap --connect tcp/127.0.0.1:7490 --key mocap/assembly/pose
                                          --mode second|huge-seq|replay|drift|spoof|malformed|copy-id|
-                                                nan-stamp|future-stamp|replay-captured [--after 5] [--duration 10]
+                                                nan-stamp|future-stamp|replay-captured|sink [--after 5]
+                                                [--duration 10]
 
 Modes: ``second`` publishes a plausible pose of its own (0.3 m off) at 100 Hz; ``huge-seq`` one sample with a
 sequence number of 2^40, then goes quiet; ``replay`` re-sends old sequence numbers; ``drift`` a pose that drifts
 away from the flight path at 5 cm/s; ``spoof`` the hover pose 5 cm off with the attitude 20 deg off; ``malformed``
 payloads that do not decode. The next modes first read the genuine stream (any peer on the network can) and
 publish under its source id (copied from its samples): ``copy-id`` the genuine pose dragged off at 0.5 m/s, its
-sequence numbers one ahead of the genuine ones; ``nan-stamp`` samples whose stamp is NaN, infinite or negative;
-``future-stamp`` a pose 1 m off stamped 100 s ahead; ``replay-captured`` the genuine samples re-sent as captured
-(MACs included) 0.1 s later. It connects to the ground station's Zenoh endpoint (the ground station listens:
-``mocap.listen = true``), waits ``--after`` seconds, then attacks.
+sequence numbers one ahead of the genuine ones; ``sink`` the same dragged down; ``nan-stamp`` samples whose stamp
+is NaN, infinite or negative; ``future-stamp`` a pose 1 m off stamped 100 s ahead; ``replay-captured`` the genuine
+samples re-sent as captured (MACs included) 0.1 s later. It connects to the ground station's Zenoh endpoint (the
+ground station listens: ``mocap.listen = true``), waits ``--after`` seconds, then attacks.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--key", default="mocap/assembly/pose")
     ap.add_argument("--mode", required=True,
                     choices=("second", "huge-seq", "replay", "drift", "spoof", "malformed", "copy-id", "nan-stamp",
-                             "future-stamp", "replay-captured"))
+                             "future-stamp", "replay-captured", "sink"))
     ap.add_argument("--after", type=float, default=5.0)
     ap.add_argument("--duration", type=float, default=10.0)
     a = ap.parse_args(argv)
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     spy = session.declare_subscriber(a.key, captured.append)
     try:
         time.sleep(a.after)
-        if a.mode in ("copy-id", "nan-stamp", "future-stamp", "replay-captured"):
+        if a.mode in ("copy-id", "nan-stamp", "future-stamp", "replay-captured", "sink"):
             return _as_the_genuine_source(session, a, captured)
         spy.undeclare()
         pub = PosePublisher(session, a.key)
@@ -99,7 +100,10 @@ def _as_the_genuine_source(session: zenoh.Session, a: argparse.Namespace, captur
         newest = captured[-1]
         seq = struct.unpack("<Qd", newest.attachment.to_bytes()[:16])[0] + 1
         now = time.time()
-        if a.mode == "copy-id":  # the genuine pose, dragged away at 0.5 m/s: each sample inside the gates
+        if a.mode == "sink":  # the genuine pose, dragged down at 0.5 m/s: an estimate held low while airborne
+            pose = decode(newest.payload.to_bytes(), newest.attachment.to_bytes())
+            payload, att = encode(PoseSample(seq, now, pose.position - [0.0, 0.0, 0.005 * k], pose.rotation))
+        elif a.mode == "copy-id":  # the genuine pose, dragged away at 0.5 m/s: each sample inside the gates
             pose = decode(newest.payload.to_bytes(), newest.attachment.to_bytes())
             payload, att = encode(PoseSample(seq, now, pose.position + [0.005 * k, 0.0, 0.0], pose.rotation))
         elif a.mode == "nan-stamp":

@@ -12,6 +12,7 @@ import pytest
 from groundstation.mocap.auth import write_key_file
 from tests.faults.table import Fault, bad_input, lying_mocap, rows
 from tests.faults.test_fault_table import _hostile_flight, _records
+from tests.faults.test_state_estimation import _touched_down_upright_within
 from tests.runtime.test_fly import config_with
 
 ENDPOINT = "tcp/127.0.0.1:7494"
@@ -27,20 +28,33 @@ def _attacked(tmp_path, mode: str, keyed: bool):
 
 @lying_mocap("mocap: a publisher copying the genuine source id, dragging the genuine pose off at 0.5 m/s, mid-flight "
              "(no key)",
-             "the interleaved sequences named, failsafe landing on the samples at the stream's own rate, exit 1; if "
-             "the forger still tips it past the tilt bound, motors off (without a key nothing tells a forger that "
-             "keeps the rate from the genuine source)")
+             "the interleaved sequences named, no pose fused from then on: a blind landing, upright on the "
+             "ground, exit 1")
 def f_mocap_copied_source_id(cli, tmp_path):
-    res, stats = _attacked(tmp_path, "copy-id", keyed=False)
+    res, log = _hostile_flight(tmp_path, "copy-id")
+    stats = json.loads(_records(log, "/mocap/stats")[-1][1])
     assert stats["foreign"] == 0 and stats["conflicts"] >= 3  # the one-publisher rule alone sees nothing
     named = [text for _, _, text in res.events
              if text.endswith("-> landing: mocap fault: two sequences under one source id on mocap/assembly/pose "
                               f"({text.split('(')[-1]}")]
     assert named, res.events  # measured: 44 ms after the first forged sample
-    # seen: landed, tilting 20-22 deg (27-65 deg before samples off the stream's cadence were refused); one run in
-    # six ended otherwise (its reason not kept): a forger that tips the landing past the tilt bound stops it
-    assert (res.phase == "done" and res.reason.startswith("mocap fault: two sequences")) or (
-        res.phase == "emergency" and res.reason == "tilt beyond 75 deg"), (res.phase, res.reason)
+    # Landing on the samples at the stream's own rate it tilted 20-22 deg (27-65 deg before samples off the
+    # stream's cadence were refused), and one run in six tipped past the tilt bound; blind, it lands upright.
+    assert res.phase == "done" and res.reason.startswith("mocap fault: two sequences"), (res.phase, res.reason)
+    _touched_down_upright_within(log, 15.0)
+
+
+@lying_mocap("mocap: a publisher copying the genuine source id, dragging the genuine pose down at 0.5 m/s, in the "
+             "plan's landing (no key)",
+             "the interleaved sequences named; no pose fused from then on, a blind landing: on the ground, upright, "
+             "when the motors stop")
+def f_mocap_copied_source_id_sinking(cli, tmp_path):
+    """Landing on the samples at the stream's own rate, the forger held the estimate on the ground while the
+    assembly was 0.5 m up: "landed", motors off, a 3 m/s fall (hostile campaign)."""
+    res, log = _hostile_flight(tmp_path, "sink", after=4.8)  # about the landing's start: well before its end
+    assert res.phase == "done" and res.reason.startswith("mocap fault: two sequences under one source id"), \
+        (res.phase, res.reason)
+    _touched_down_upright_within(log, 15.0)
 
 
 @lying_mocap("mocap: samples stamped NaN, infinite or negative under the copied source id, mid-flight",
