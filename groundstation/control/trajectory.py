@@ -241,6 +241,8 @@ def _smoothstep(x: float) -> tuple[float, float, float]:
     return 10 * x**3 - 15 * x**4 + 6 * x**5, 30 * x**2 - 60 * x**3 + 30 * x**4, 2.5 * x**4 - 3 * x**5 + x**6
 
 
+LANDING_DEPTH = 0.02
+"""A landing aims this far below the ground, m: the touchdown's last thrust presses the assembly down (firm contact)."""
 MAX_LANDING_MPS = 0.8
 """The fastest mean descent of a landing (its height over its time), m/s: a landing lasts at least its height over
 this (:attr:`FlightPlan.landing_time`, and the flight's landings begun elsewhere). The quintic peaks at 1.875 times
@@ -271,7 +273,7 @@ class FlightPlan:
     @cached_property
     def landing_time(self) -> float:
         """The landing's time: ``landing_s``, or its height over :data:`MAX_LANDING_MPS` if longer, s."""
-        drop = self._ends[1][2] - (self.ground[2] - 0.02)
+        drop = self._ends[1][2] - (self.ground[2] - LANDING_DEPTH)
         return max(self.landing_s, drop / MAX_LANDING_MPS)
 
     @cached_property
@@ -327,7 +329,7 @@ class FlightPlan:
             return self._tracked(t - t2)
         if t < t4:
             return Setpoint(np.array(end), np.zeros(3), np.zeros(3), self._attitude(1.0))
-        touchdown = (end[0], end[1], self.ground[2] - 0.02)  # aim slightly below ground so contact is firm
+        touchdown = (end[0], end[1], self.ground[2] - LANDING_DEPTH)
         sp = Ramp(end, touchdown, self.landing_time)(t - t4)
         level = 1.0 - _smoothstep(2.0 * (t - t4) / self.landing_time)[0]
         return Setpoint(sp.position, sp.velocity, sp.acceleration, self._attitude(level))
@@ -341,7 +343,7 @@ class FlightPlan:
         tb = self.track.bounds()
         warp_accel = tb.accel + (tb.speed * QUINTIC_SPEED / r if r > 0 else 0.0)
         tracked = Bounds(tb.lower, tb.upper, tb.speed, warp_accel)
-        touchdown = (end[0], end[1], self.ground[2] - 0.02)
+        touchdown = (end[0], end[1], self.ground[2] - LANDING_DEPTH)
         return (Ramp(self.ground, start, self.takeoff_s).bounds().union(tracked)
                 .union(Ramp(end, touchdown, self.landing_time).bounds()))
 

@@ -41,7 +41,13 @@ from groundstation.control.geometric import Gains, control, reference_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
-from groundstation.control.trajectory import MAX_LANDING_MPS, FlightPlan, Landing, roll_pitch_yaw
+from groundstation.control.trajectory import (
+    LANDING_DEPTH,
+    MAX_LANDING_MPS,
+    FlightPlan,
+    Landing,
+    roll_pitch_yaw,
+)
 from groundstation.errors import ArmingError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.gyro_check import GyroAgreement
@@ -286,8 +292,6 @@ class Recording:
     phase: list = field(default_factory=list)
 
 
-LANDING_DEPTH = 0.02
-"""A landing aims this far below the ground, m: the touchdown's last thrust presses the assembly down."""
 DISTURBANCE_HOLD_S = 0.1
 """How long the disturbance must stay beyond ``max_disturbance_mps2`` (a shove's lasts a tenth of a second), s."""
 LANDED_HEIGHT_M = 0.15
@@ -297,11 +301,11 @@ DISTURBANCE_LANDING_S = 0.6
 """A landing begun (or under way) while the disturbance is beyond its bound stops the motors once it has lasted this
 long, s."""
 NEAR_GROUND_M = 0.3
+"""An estimate this close above the ground has nothing to land from, m."""
 GROUND_CONTACT_M = 0.02
 """An estimate this close above the ground it took off from (or below it) may touch it, m: in a landing the gyros'
 disagreement is not judged there (:meth:`GyroAgreement.rate`). Before and in the take-off it is: at rest nothing
 kicks the body rate, and a gyro that reads wrong must be found before the assembly leaves the ground."""
-"""An estimate this close above the ground has nothing to land from, m."""
 TURN_RATE_MAX_GAP_S = 0.05
 """The reference's turn rate is taken over the step from the previous period when no longer than this, s."""
 BLIND_LANDING_DEPTH = 0.15
