@@ -105,6 +105,8 @@ class PyBulletBackend(BackendBase):
         """Set to a module's index to inject a failed IMU: its gyro reads full scale about the module's x axis."""
         self.stuck_gyros: float | None = None
         """Every gyro reads this rate about each body axis, rad/s, unchanging (NaN: not a number)."""
+        self.flipped_gyros = False
+        """Every gyro reads the body rate with its sign flipped (each agreeing with the others)."""
         self.push: tuple[float, float, float] | None = None
         """A force on the body's centre, world frame, N (fault injection: a shove, a gust)."""
         self._tie: int | None = None
@@ -168,6 +170,8 @@ class PyBulletBackend(BackendBase):
         if self.stuck_gyros is not None:
             rates[:] = self.stuck_gyros
             gyro = rates.mean(axis=0)
+        if self.flipped_gyros:
+            rates, gyro = -rates, -gyro
         return Telemetry(stamp=self._t, link_ok=self._client is not None and self.link_ok, motors=self._u.copy(),
                          gyro=gyro, module_gyros=rates)
 

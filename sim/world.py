@@ -104,6 +104,7 @@ class SimulatedWorld:
         def advance(t: float) -> None:
             self.backend.link_ok = not self.faults.link_lost
             self.backend.failed_gyro = self.faults.gyro_failed
+            self.backend.flipped_gyros = self.faults.gyros_flipped
             self.backend.push = self.faults.push_n
             if self.faults.tied_down:
                 self.backend.tie_down()

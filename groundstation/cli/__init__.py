@@ -9,6 +9,7 @@ be reached or refuse to arm), 130 on Ctrl-C.
 from __future__ import annotations
 
 import logging
+import signal
 import sys
 
 import click
@@ -23,6 +24,7 @@ from groundstation.cli.params_cmd import params_command
 from groundstation.cli.replay_cmd import replay_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import BackendError, GroundstationError
+from groundstation.runtime.signals import LANDING_SIGNALS
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
@@ -52,25 +54,46 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point of ``groundstation`` and ``python -m groundstation``."""
     # cflib logs every link problem as a warning with a traceback; our errors name the module and its link.
     logging.getLogger("cflib").setLevel(logging.ERROR)
+    # A command may leave handlers for the process's end (``fly``: a signal after the flight ends the process with
+    # its status); called in-process (``argv`` given: a test, a script), the caller's are put back.
+    handlers = {s: signal.getsignal(s) for s in signal.valid_signals()} if argv is not None else {}
+    try:
+        rv = _run(argv)
+    finally:
+        for s, h in handlers.items():
+            if signal.getsignal(s) is not h:
+                signal.signal(s, h)
+    if argv is None:
+        # The command's work is done: a signal while the interpreter exits must not change its status. Late in
+        # its exit Python puts the default handlers back (not where they are ignored), and a SIGTERM there ended
+        # a finished flight 143 after its summary said "done" (hostile campaign). Blocking them would not do: Zenoh's
+        # threads would take them.
+        for s in LANDING_SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
+    sys.exit(rv)
+
+
+def _run(argv: list[str] | None) -> int:
+    """The command's exit status."""
     try:
         rv = cli.main(args=argv, prog_name="groundstation", standalone_mode=False)
     except click.exceptions.NoArgsIsHelpError as exc:  # bare command: show help, like click does
         click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
-        sys.exit(0)
+        return 0
     except click.UsageError as exc:
         hint = f" (see 'groundstation {exc.ctx.info_name} --help')" if exc.ctx and exc.ctx.parent else ""
         click.echo(f"groundstation: error: {exc.format_message()}{hint}", err=True)
-        sys.exit(EXIT_BAD_INPUT)
+        return EXIT_BAD_INPUT
     except click.exceptions.Abort:
         click.echo("groundstation: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
     except KeyboardInterrupt:
         click.echo("groundstation: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
     except BackendError as exc:
         click.echo(f"groundstation: error: {exc}", err=True)
-        sys.exit(EXIT_FAILED)
+        return EXIT_FAILED
     except GroundstationError as exc:
         click.echo(f"groundstation: error: {exc}", err=True)
-        sys.exit(EXIT_BAD_INPUT)
-    sys.exit(rv if isinstance(rv, int) else 0)
+        return EXIT_BAD_INPUT
+    return rv if isinstance(rv, int) else 0

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import signal
+import sys
 import threading
 from dataclasses import asdict
 
@@ -27,6 +30,7 @@ from groundstation.cli.common import (
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
+from groundstation.runtime.signals import LANDING_SIGNALS
 from groundstation.runtime.terminal import forget_lost_terminal
 
 EXIT_EMERGENCY = 1
@@ -94,6 +98,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
                            f"(WebSocket subprotocol {' or '.join(SUBPROTOCOLS)})", err=True)
             result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
                          handle_signals=True, activity=activity, live_port=live_port)
+            _end_on_signal(LANDING_SIGNALS, _status(result))
     finally:
         done.set()
         forget_lost_terminal()  # hung up in flight (the signal handler saw a live terminal) or after it
@@ -108,7 +113,29 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         with contextlib.suppress(OSError):
             click.echo(f"groundstation: cannot print the flight's summary ({exc.strerror or exc}); it is in the "
                        f"log {result.log_path}", err=True)
-        return EXIT_EMERGENCY if not result.nominal else EXIT_DEGRADED if result.degraded else 0
+        return _status(result)
+
+
+def _status(result) -> int:
+    """The exit status of a flight that ended (see :func:`fly_command`)."""
+    return EXIT_EMERGENCY if not result.nominal else EXIT_DEGRADED if result.degraded else 0
+
+
+def _end_on_signal(signals, status: int) -> None:
+    """From the flight's end (motors off, log finalized) to the process's: one of ``signals`` ends the process at
+    once with the flight's ``status``, what was printed flushed. By default a SIGTERM or Ctrl-C in that time (the
+    summary printing, Zenoh closing) ended it 143 or 130 after a summary saying "done" (hostile campaign); ignored,
+    a shutdown that hangs could not be cut short. Left installed to the process's end (:func:`groundstation.cli.main`
+    restores the caller's handlers when called in-process)."""
+
+    def handler(signum, frame):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os._exit(status)
+
+    for s in signals:
+        signal.signal(s, handler)
 
 
 def _report(flight: str, result, as_json: bool) -> int:
@@ -147,11 +174,9 @@ def _report(flight: str, result, as_json: bool) -> int:
             what = {Phase.ABORTED: "did not start", Phase.DONE: "landed early"}.get(result.phase,
                                                                                   f"ended in {result.phase}")
             click.echo(f"groundstation: the flight {what}: {result.reason}", err=True)
-        return EXIT_EMERGENCY
-    if result.degraded:
+    elif result.degraded:
         click.echo(f"groundstation: the flight degraded beyond its bounds: {'; '.join(result.degraded)}", err=True)
-        return EXIT_DEGRADED
-    return 0
+    return _status(result)
 
 
 @click.group("log")

@@ -160,6 +160,11 @@ class Estimate:
 LOST_ATTITUDE_SIGMA = 0.5
 """Std of the attitude when the gyros are lost, rad (:meth:`RigidBodyFilter._lose_gyros`): the next pose is taken
 whole."""
+FORGET_S = 1.5
+"""How far back :meth:`RigidBodyFilter.forget_since` can reach, s (a copied source id is a fault on three sequence
+conflicts within a second: :class:`groundstation.mocap.zenoh_link.SubscriberSettings`)."""
+REGROW_STEP_S = 0.004
+"""...and grows the covariance it restores in steps this long, s (a 250 Hz control period)."""
 POSE_RATE_WINDOW_S = 0.05
 """Span of the poses :meth:`RigidBodyFilter.pose_rate` differentiates, s."""
 _IDENTITY: Mat3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -256,6 +261,12 @@ class RigidBodyFilter:
         """Capture time of the newest fused measurement, s."""
         self._last_pose: tuple[float, list[float], list[float]] | None = None
         """(t, position, rotation's entries) of the measurement before (to tell a frozen stream)."""
+        self._corrections: deque[tuple[float, Vec3, Vec3, Vec3, list[float], float, float]] = deque()
+        """(capture time, position, velocity and disturbance correction there, the translation covariance before
+        it, the estimate's time then, the capture time of the measurement fused before) of the measurements fused
+        in the last ``FORGET_S``, oldest first: what :meth:`forget_since` takes back."""
+        self.forgotten = 0
+        """Measurements fused and later taken back (:meth:`forget_since`)."""
         self._fused_poses: deque[PoseMeasurement] = deque()
         """The fused measurements of the last ``POSE_RATE_WINDOW_S`` (:meth:`pose_rate`)."""
         self._rejecting_since: float | None = None
@@ -457,7 +468,12 @@ class RigidBodyFilter:
         self._innovation_attitude = dth
         if off > max(s.gate_sigma * math.sqrt(s_a), s.attitude_gate_floor + rate * s.gyro_timing):
             return self._reject(m.t, f"attitude {math.degrees(off):.1f} deg off the gyros' prediction")
+        pt_before = self._pt_plain or self._pt
         cp, cv, cd, ct = self._fuse(m.t, dp, s_p, dth, s_a)
+        corrections = self._corrections
+        corrections.append((m.t, cp, cv, cd, pt_before, self._t, self.last_fused_t))
+        while corrections[0][0] < m.t - FORGET_S:
+            corrections.popleft()
         if m.t > tm:
             # The corrected estimate at the capture time joins the history: the next pose captured before the next
             # entry is compared with it, not with the uncorrected one before (after a pause between periods, a
@@ -471,6 +487,40 @@ class RigidBodyFilter:
         self._fused_arrival = self._t
         self._keep_fused(m)
         return True
+
+    def forget_since(self, t: float) -> int:
+        """Take back the translation corrections of every measurement captured at or after ``t`` (s, at most
+        ``FORGET_S`` ago), as if they had never come: the position, velocity and disturbance lose exactly what
+        each added (the model is linear in them: a correction at ``t_m`` is carried to ``tau`` later as ``_corrected``
+        says), the covariance is the one before the first of them, grown since, and the estimate's age counts from
+        the measurement before. For poses that turn out to be a forger's (:meth:`PoseSubscriber.untrusted_since`):
+        a copied source id dragging the pose down at 0.5 m/s taught the estimate a 0.4 m/s^2 sink in the 40 ms
+        before the conflicts were a fault, and the blind landing after it stopped the motors 0.6 m up (a 2.2 m/s
+        touchdown). The attitude's corrections stay: the gyros bound them, and a forger's pose was no more than
+        the gate's 1.5 deg off. Returns how many were taken back; call it, then fuse no more of the stream."""
+        undone = [c for c in self._corrections if c[0] >= t]
+        if not undone or self._t is None:
+            return 0
+        for tm, cp, cv, cd, *_ in undone:
+            back = ((-cp[0], -cp[1], -cp[2]), (-cv[0], -cv[1], -cv[2]), (-cd[0], -cd[1], -cd[2]))
+            for entry in self._history:
+                if entry[0] >= tm:
+                    entry[1], entry[2], entry[3] = _corrected(entry[1], entry[2], entry[3], *back, entry[0] - tm)
+            self._p, self._v, self._d = _corrected(self._p, self._v, self._d, *back, self._t - tm)
+        _, _, _, _, pt, t_fused, before = undone[0]
+        # Grown in steps of a control period, as the estimate was: in one step the disturbance's walk does not reach
+        # the position's variance (1 % low after 60 ms).
+        steps = max(1, math.ceil((self._t - t_fused) / REGROW_STEP_S))
+        for _ in range(steps):
+            pt = self._grown(pt, (self._t - t_fused) / steps)
+        self._pt = pt
+        self._pt_plain = None
+        self.last_fused_t = before
+        self._corrections.clear()
+        self._fused_poses = deque(m for m in self._fused_poses if m.t < t)
+        self._state = None
+        self.forgotten += len(undone)
+        return len(undone)
 
     def _keep_fused(self, m: PoseMeasurement) -> None:
         poses = self._fused_poses
@@ -511,6 +561,7 @@ class RigidBodyFilter:
             self._remember()
         self.fused += 1
         self.last_fused_t = m.t
+        self._corrections.clear()
         self._fused_poses.clear()
         self._keep_fused(m)
 
@@ -580,6 +631,18 @@ class RigidBodyFilter:
         """No gyro is usable and no pose has been fused for more than ``gyro_stale_s`` (by when it arrived):
         nothing observes the attitude (it is held, its uncertainty growing)."""
         return self._lost is not None and self._gyro is None
+
+    @property
+    def attitude_innovation_angle(self) -> float:
+        """How far the newest measurement's attitude was from the estimate's, rad (0 if rejected for its position)."""
+        x, y, z = self._innovation_attitude
+        return math.sqrt(x * x + y * y + z * z)
+
+    @property
+    def attitude_conflict_since(self) -> float | None:
+        """Capture time of the first of a run of poses rejected for their attitude alone, going on now (their
+        positions agreed: the poses and the gyros disagree on how the body turns), s; None without one."""
+        return self._rejecting_since if self._attitude_only else None
 
     def gyros_lost(self, since: float) -> None:
         """No gyro has been usable since ``since`` (s; every one failed alike: :class:`GyroAgreement`); call it

@@ -77,6 +77,8 @@ class GyroAgreement:
         """Per module: since when its reading has been the same to the last bit, s (None: it changed)."""
         self._used_t = -math.inf
         """When the newest reading flown on arrived, s."""
+        self._condemned_since: float | None = None
+        """Since when every reading is wrong, as another witness found (:meth:`condemn`), s."""
 
     def rate(self, t: float, module_gyros: np.ndarray, mean: np.ndarray,
              referee: Callable[[], np.ndarray | None] | None = None, ages: np.ndarray | None = None,
@@ -96,6 +98,9 @@ class GyroAgreement:
         n = len(module_gyros)
         if n == 0:
             return mean, age
+        if self._condemned_since is not None:
+            self.lost_since = self._condemned_since
+            return np.full(3, math.nan), t - self._condemned_since
         # In Python floats: on a few modules' readings numpy's overhead per call costs more than the arithmetic
         # (``python -m benchmarks.estimator``, 2026-12-02: 68 us a period in numpy for two modules, 10 us in floats; 82
         # and 67 us for 60).
@@ -140,6 +145,13 @@ class GyroAgreement:
         used_age = age if ages is None or len(ages) != n else float(ages[keep].max())
         self._used_t, self.lost_since = t - used_age, None
         return (mean if keep.all() else module_gyros[keep].mean(axis=0)), used_age
+
+    def condemn(self, since: float, why: str) -> None:
+        """Every module's reading is wrong alike since ``since`` (s), as a witness other than the modules found
+        (:class:`~groundstation.estimation.gyro_torque.TorqueAgreement`): from now on :meth:`rate` gives no rate,
+        and :attr:`fault` says ``why`` (unless a fault was named before: it stays, the rate goes all the same)."""
+        self._condemned_since = since
+        self.fault = self.fault or why
 
     def _frozen(self, t: float, rates: list[list[float]], fresh: np.ndarray | None) -> np.ndarray | None:
         """Which modules' readings have been the same to the last bit, while fresh, for ``frozen_s`` (None: none)."""

@@ -183,11 +183,15 @@ class PoseSubscriber:
         self._stamps = StampClock(self.settings.stamps)
         self._polled = -np.inf
         """When the samples were last polled (clock time), s."""
-        self._conflict_times: list[float] = []
+        self._conflicts: list[tuple[float, float]] = []
+        """(arrival s, suspect s: :meth:`_conflict`) of the sequence conflicts of the last second."""
+        self._untrusted_since: float | None = None
         self._cadence = 0.01
         """The stream's sample interval, s (filtered stamp differences per sequence step)."""
         self._behind_since_accept = False
         """A sample was rejected as not after the newest since the last one taken."""
+        self._behind_of: PoseSample | None = None
+        """The sample taken that the first such sample fell behind (a forger's, if it was one)."""
         self._lock = threading.Lock()
         self._last: PoseSample | None = None
         self._received_at = 0.0
@@ -254,7 +258,7 @@ class PoseSubscriber:
             return f"sequence jumps {ahead} ahead"
         if pose.stamp <= last.stamp:
             return "stamp not after the last one"
-        if self._conflict_times and pose.stamp - last.stamp < 0.5 * self._cadence:
+        if self._conflicts and pose.stamp - last.stamp < 0.5 * self._cadence:
             # A second sender under the source's id answers the genuine samples at once; the genuine publisher
             # keeps its rate. While one is seen, a sample off that rate is not taken (a forger can match the rate
             # too: the defence is the key).
@@ -316,7 +320,8 @@ class PoseSubscriber:
             if why:
                 self.rejected += 1
                 self.last_rejection = why
-                self._behind_since_accept |= pose.sequence <= last.sequence
+                if pose.sequence <= last.sequence and not self._behind_since_accept:
+                    self._behind_since_accept, self._behind_of = True, last
                 track = self._track
                 if track and not self._continues(track[-1], pose):
                     track.clear()
@@ -331,7 +336,7 @@ class PoseSubscriber:
             if self._behind_since_accept and self._mac_key is None:  # with a key, samples behind are replays
                 self._conflict(now)
             self.missed += pose.sequence - last.sequence - 1
-            if not self._conflict_times:  # the stream's own rate, learnt while a single sender is seen
+            if not self._conflicts:  # the stream's own rate, learnt while a single sender is seen
                 self._cadence += 0.05 * ((pose.stamp - last.stamp) / (pose.sequence - last.sequence) - self._cadence)
         self._take(pose, now)
 
@@ -351,7 +356,7 @@ class PoseSubscriber:
         self._source = None
         self._last = None
         self._track.clear()
-        self._conflict_times.clear()
+        self._conflicts.clear()
         self._behind_since_accept = False
         self._stamps = StampClock(self.settings.stamps)
 
@@ -364,8 +369,22 @@ class PoseSubscriber:
         self.accepted += 1
 
     def _conflict(self, now: float) -> None:
+        """Count a sequence conflict found at ``now``. Its suspect time is the capture time (local clock, as the
+        measurements') of the sample the rejected one fell behind, less one sample interval: a forger's sample is
+        taken first (its sequence ahead) and the genuine one after it refused, so what was taken from there on may
+        be forged. Latched with the fault: :meth:`untrusted_since`."""
         self.conflicts += 1
-        self._conflict_times = [t for t in self._conflict_times if t > now - 1.0] + [now]
+        behind = self._behind_of
+        suspect = self._stamps.local(behind.stamp) - self.settings.latency - self._cadence if behind else now
+        self._conflicts = [c for c in self._conflicts if c[0] > now - 1.0] + [(now, suspect)]
+        if len(self._conflicts) >= self.settings.max_conflicts and self._untrusted_since is None:
+            self._untrusted_since = min(c[1] for c in self._conflicts)
+
+    def untrusted_since(self) -> float | None:
+        """Since when (the measurements' capture time, s) the samples may be a second sender's under the source's
+        id (the fault "two sequences under one source id": without a key nothing tells its samples from the
+        genuine ones); None while no such fault was found. Latched: nothing the stream sends later is trusted."""
+        return self._untrusted_since
 
     def fault(self) -> str:
         """Why the stream cannot be trusted ("" while it can): another publisher on the body's key, or two
@@ -373,7 +392,7 @@ class PoseSubscriber:
         if self.foreign:
             return (f"a second publisher on {self.key} ({self.foreign} samples from "
                     f"{len(self.foreign_sources)} other source{'s' if len(self.foreign_sources) > 1 else ''})")
-        if len(self._conflict_times) >= self.settings.max_conflicts:
+        if self._untrusted_since is not None:
             return (f"two sequences under one source id on {self.key} ({self.conflicts} samples out of sequence: "
                     f"a copied id or replayed samples)")
         return ""

@@ -51,6 +51,7 @@ from groundstation.control.trajectory import (
 from groundstation.errors import ArmingError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.gyro_check import GyroAgreement
+from groundstation.estimation.gyro_torque import TorqueAgreement
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.loop_activity import LoopActivity
 from groundstation.rotations import matrix_to_rotvec
@@ -68,6 +69,11 @@ MAX_BLIND_DESCENT_MPS = 0.6
 :data:`~groundstation.control.trajectory.MAX_LANDING_MPS`), m/s: flown on the estimate alone, it trails more.
 Measured from 1 m: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s 1.58 m/s; at 2-5 m/s the rotors went to zero
 and it tipped 46-48 deg."""
+GYROS_DISPUTED_RAD = math.radians(1.0)
+"""A pose's attitude this far from the estimate's (or rejected for it) is the poses and the gyros disagreeing enough
+to ask the torque commanded which is wrong (:class:`TorqueAgreement`), rad: three times the largest of a nominal dry
+run (0.33 deg), under the estimator's gate (1.5 deg and more with the rate), which a sign-flipped set of gyros
+passed 80 ms after the flip, the V tilting 20 deg by then (at 1 deg: 40 ms)."""
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
 RATE_WINDOW_S = 1.0
@@ -86,6 +92,11 @@ class PoseSource(Protocol):
         ...
 
     def fault(self) -> str: ...
+
+    def untrusted_since(self) -> float | None:
+        """Since when (capture time, s) the measurements may be forged under the source's own id; None: never."""
+        ...
+
     def integrity(self) -> MocapIntegrity: ...
 
 
@@ -124,6 +135,9 @@ class PhysicsPoseSource:
 
     def fault(self) -> str:
         return ""
+
+    def untrusted_since(self) -> float | None:
+        return None
 
     def integrity(self) -> MocapIntegrity:
         return MocapIntegrity()
@@ -340,6 +354,8 @@ class Flight:
         """The flight's only source of state (``estimator``: one that has already followed the poses, in preflight;
         by default a new one with the default settings)."""
         self.gyros = GyroAgreement()
+        self.torque = TorqueAgreement(self.model.inertia)
+        """The gyros against the torque commanded: the referee when they and the poses disagree."""
         """The modules' gyros judged against each other (a failed IMU lands the flight)."""
         self.policy = policy or FailsafePolicy()
         self.log = log
@@ -390,6 +406,8 @@ class Flight:
         """The estimate's height above the ground it took off from, last period, m (on it before the first)."""
         self._poses_untrusted = False
         """No pose is fused any more: the stream carried two sequences under one source id (a copied id)."""
+        self._forgotten = 0
+        """Poses taken back when the stream turned untrusted, not yet named in an event."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _log_time(self, t: float) -> float:
@@ -424,9 +442,27 @@ class Flight:
                 est.gyros_lost(lost)
             self._gyros_lost_at = lost
         est.predict(now, gyro, age)
+        self.torque.add(now, gyro)
         poses = self.pose.measurements()  # drained even when untrusted: they must not pile up
+        since = self.pose.untrusted_since()
+        if since is not None and not self._poses_untrusted:
+            # Two sequences under one source id: without a key nothing tells the forged samples from the genuine
+            # ones, so none is fused from then on, and what those since the first conflict taught the estimate is
+            # taken back (landing on "the stream's own rate", a forger dragging the pose down held the estimate on
+            # the ground 0.5 m up: "landed", motors off; blind, but with what it had learnt, 0.6 m up).
+            self._poses_untrusted = True
+            self._forgotten = est.forget_since(since)
         for m in () if self._poses_untrusted else poses:
             est.correct(m)
+        conflict = est.attitude_conflict_since
+        disputed = conflict is not None or est.attitude_innovation_angle > GYROS_DISPUTED_RAD
+        if disputed and self.gyros.lost_since is None and (why := self.torque.against()):
+            # The poses turn one way, the gyros another: a frozen or forged stream, or every gyro wrong alike (a
+            # sign flipped: the attitude loop then feeds the turn, and the V tipped past 75 deg 0.2 s after it
+            # began, the poses rejected as "off the gyros' prediction"). The torque commanded tells which.
+            self.gyros.condemn(min(conflict or math.inf, now - self.torque.settings.window_s),
+                               f"every module's gyro turns against the commanded torque ({why}): a sign or axes "
+                               f"wrong; no body rate, the attitude from the poses alone")
         state = est.state()
         if state is not None:
             self._height = float(state.position[2]) - float(self.plan.ground[2])
@@ -441,6 +477,7 @@ class Flight:
     def _emergency(self, t: float, why: str) -> None:
         self.backend.emergency_stop()
         self.estimator.command(None)
+        self.torque.command(None)
         self._last_u = np.zeros_like(self._last_u)
         self.reason = why
         self._set_phase(t, Phase.EMERGENCY, why)
@@ -529,10 +566,10 @@ class Flight:
                 self._emergency(t, why)
                 return False
             kind = fault.split(" (")[0]  # its counts in brackets change every period
-            # Two sequences under one source id: without a key nothing tells the forged samples from the genuine
-            # ones, so none is fused from then on and the landing is blind (landing on "the stream's own rate", a
-            # forger dragging the pose down held the estimate on the ground 0.5 m up: "landed", motors off).
-            self._poses_untrusted = self._poses_untrusted or kind.startswith("two sequences under one source id")
+            if self._forgotten:
+                self._event(t, "warning", f"{self._forgotten} poses fused since the first sequence conflict taken "
+                                          f"back; no pose is fused from now on")
+                self._forgotten = 0
             if self.phase.airborne or (self.phase == Phase.LANDING and kind != self._mocap_fault_named):
                 # The estimator's fault: every pose rejected, so landing on the estimate. A landing under way (the
                 # plan's, or on stale poses) goes on, blind if need be, named once per kind of fault.
@@ -617,6 +654,7 @@ class Flight:
             return False
         self.backend.send(u)
         est.command(self.model.allocation[:3] @ u)
+        self.torque.command(self.model.allocation[3:] @ u)
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
         return True
@@ -709,6 +747,7 @@ class Flight:
     def _finish(self, t: float) -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
         self.estimator.command(None)
+        self.torque.command(None)
         self._last_u = np.zeros_like(self._last_u)
         self._set_phase(t, Phase.DONE, "landed")
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it

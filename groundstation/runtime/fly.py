@@ -85,6 +85,7 @@ from groundstation.runtime.flight_config import (
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopStats, WallClock, realtime_priority
 from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 from groundstation.runtime.placement import placement_issues
+from groundstation.runtime.signals import LANDING_SIGNALS, NEVER_A_STOP, TOOL_SIGNALS
 from groundstation.runtime.terminal import forget_lost_terminal
 
 PREFLIGHT_TIMEOUT_S = 3.0
@@ -97,8 +98,8 @@ STILL_SPEED = 0.2
 class Faults:
     """Fault injection for drills and tests: set these (e.g. from ``on_period``) during a simulated flight.
 
-    ``mocap_*``, ``link_lost``, ``gyro_failed``, ``gyros_stuck``, ``tied_down`` and ``push_n`` act on the in-process
-    simulator only; with simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
+    ``mocap_*``, ``link_lost``, ``gyro_failed``, ``gyros_stuck``, ``gyros_flipped``, ``tied_down`` and ``push_n`` act on
+    the in-process simulator only; with simulated Crazyflie or PX4 modules, stop the peer process to lose the link."""
 
     mocap_paused: bool = False
     """The virtual mocap stops publishing."""
@@ -121,6 +122,9 @@ class Faults:
     gyros_stuck: float | None = None
     """Every module's gyro reads this rate about each body axis, rad/s, the same every time (NaN: not a number):
     the modules agree with each other, and are all wrong."""
+    gyros_flipped: bool = False
+    """Every module's gyro reads the body rate with its sign flipped (a firmware or configuration error common to
+    all): they agree with each other, and are all wrong."""
     tied_down: bool = False
     """The assembly is fixed where it is (a forgotten tie-down, a snagged cable): the rotors spin, it stays."""
     push_n: tuple[float, float, float] | None = None
@@ -206,6 +210,9 @@ class _LoggedPose:
 
     def fault(self) -> str:
         return self._sub.fault()
+
+    def untrusted_since(self) -> float | None:
+        return self._sub.untrusted_since()
 
     def integrity(self) -> MocapIntegrity:
         sub = self._sub
@@ -589,17 +596,6 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, to_log: Callable[[fl
     finally:
         sys.setswitchinterval(switch)
     return stats
-
-
-LANDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGTSTP, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1,
-                   signal.SIGUSR2, signal.SIGALRM)
-"""Signals a flight lands on. By default each of the last four ends the process (Ctrl-\\ dumps core): in flight,
-the modules' watchdogs cut the motors and the assembly falls."""
-TOOL_SIGNALS = ("SIGUSR1", "SIGUSR2", "SIGALRM")
-"""Signals tools send (log rotation, timers), not operators."""
-NEVER_A_STOP = (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2, signal.SIGALRM)
-"""Signals that land but never stop the motors when repeated: no operator sends them twice to ask for a stop (a hang-up
-can come twice; tools send the others repeatedly)."""
 
 
 def _install_signals(requests: Requests, started: threading.Event):

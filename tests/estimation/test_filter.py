@@ -223,6 +223,38 @@ def test_after_the_fault_the_uncertainty_is_that_of_an_estimate_that_never_saw_t
     assert judged.state().position == pytest.approx(twin.state().position, abs=1e-12)
 
 
+def test_poses_taken_back_leave_the_estimate_of_a_twin_that_never_saw_them():
+    """From 2 s a forger's poses drag the body down at 0.5 m/s (each within the gates); 60 ms later they are found
+    out and taken back: position, velocity and disturbance are a twin's that had no pose since 2 s (to what the
+    attitude's kept corrections change in the model's acceleration), its uncertainty too, and its age counts from
+    the last genuine pose."""
+    truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
+    forged, twin, kept = (RigidBodyFilter(EstimatorSettings(), MASS) for _ in range(3))
+    for f in (forged, twin, kept):
+        _run(f, 2.0, truth)
+    last_genuine = forged.last_fused_t
+    for k in range(15):  # 60 ms
+        t = 2.0 + (k + 1) * DT
+        for f in (forged, twin, kept):
+            f.predict(t, np.zeros(3))
+        if k % 2 == 0:
+            sunk = (np.array([0.0, 0.0, 1.0 - 0.5 * (t - 2.0)]), np.eye(3))
+            forged.correct(PoseMeasurement(t, *sunk))
+            kept.correct(PoseMeasurement(t, *sunk))
+        for f in (forged, twin, kept):
+            f.command(HOVER)
+    assert kept.fused == forged.fused and kept.state().velocity[2] < -0.05 and kept.disturbance > 0.2  # learnt
+    assert forged.forget_since(2.0 + DT / 2) == 8 and forged.forgotten == 8  # not the genuine pose at 2 s
+    assert forged.last_fused_t == last_genuine
+    assert forged.state().position == pytest.approx(twin.state().position, abs=1e-5)  # the forger: 3 cm
+    assert forged.state().velocity == pytest.approx(twin.state().velocity, abs=5e-4)  # kept: 0.01 deg of tilt
+    assert forged.estimate().disturbance == pytest.approx(twin.estimate().disturbance, abs=1e-6)
+    assert forged.estimate().velocity_sigma == pytest.approx(twin.estimate().velocity_sigma, rel=1e-4)
+    # The position's includes the attitude's term for a body flown blind, and the attitude kept what it learnt.
+    assert forged.estimate().position_sigma == pytest.approx(twin.estimate().position_sigma, rel=0.02)
+    assert forged.forget_since(2.0 + DT / 2) == 0  # nothing left to take back
+
+
 def test_without_poses_the_uncertainty_grows_and_shrinks_again_when_they_return():
     truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
     f = RigidBodyFilter(EstimatorSettings(), MASS)

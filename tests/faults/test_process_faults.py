@@ -288,6 +288,30 @@ def f_sigtstp_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, stops, 7669, signal.SIGTSTP), signal.SIGTSTP)
 
 
+@process_fault("SIGTERM, Ctrl-C and SIGHUP, one every 2 ms, from the flight's summary until the process has "
+               "exited (a service manager or an operator ending a flight that just landed)",
+               "the exit status is the flight's (0: it landed as planned), the summary whole; by default a signal "
+               "in that time ended the process 143 or 130 after a summary saying done")
+def f_signals_after_the_flight(cli, tmp_path):
+    log = tmp_path / "ended.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7676"), log, "--duration", "1")
+    sent = 0
+    try:
+        _wait_until(lambda: "log: " in proc.output_paths[1].read_text(), proc, "printed its summary")
+        signals = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+        while proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):  # it has just exited
+                proc.send_signal(signals[sent % 3])
+                sent += 1
+            time.sleep(0.002)
+        out, err = _ended(proc)
+    finally:
+        proc.kill()
+    assert sent >= 2, sent  # measured: 41-49 signals in the ~0.1 s the process takes to exit
+    assert proc.returncode == 0, (proc.returncode, err)
+    assert json.loads(out)["phase"] == "done" and "Traceback" not in err
+
+
 @process_fault("replay of a log while its flight is under way",
                "the reason says its writer is still writing it (not that its flight process died); not complete")
 def f_replay_during_the_flight(cli, tmp_path):

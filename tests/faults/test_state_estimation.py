@@ -262,10 +262,14 @@ def f_gyro_failed(cli, tmp_path):
 
 
 @estimate_fault("every module's gyro stuck alike in tracking: all read 1 rad/s about each axis, unchanging (dry run)",
-                "no module blamed: frozen (the same to the last bit for 40 ms), the attitude and rate from the poses, "
-                "a landing at half the attitude bandwidth, named; tilt below 20 deg, exit 1")
+                "no module blamed: frozen (the same to the last bit for 40 ms) or turning against the commanded "
+                "torque, whichever shows first; the attitude and rate from the poses, a landing at half the attitude "
+                "bandwidth, named; tilt below 20 deg, exit 1")
 def f_gyros_stuck_alike(cli, tmp_path):
-    _gyros_failed_alike(tmp_path, 1.0, "has read (57.3, 57.3, 57.3) deg/s to the last bit for ")
+    # The step to 1 rad/s turns the estimate, the controller's torque answers the phantom turn: the torque's
+    # referee (a slope of -1.5) can see it before the freeze shows.
+    _gyros_failed_alike(tmp_path, 1.0, ("has read (57.3, 57.3, 57.3) deg/s to the last bit for ",
+                                        "turns against the commanded torque (slope "))
 
 
 @estimate_fault("every module's gyro NaN in the plan's landing (dry run)",
@@ -306,7 +310,36 @@ def f_gyros_nan_before_takeoff(cli, tmp_path):
     assert not any("state" in m for _, m in motors), "a control period ran"
 
 
-def _gyros_failed_alike(tmp_path, value: float, what: str, at: float = TRACK_START_S + 2.5) -> None:
+@estimate_fault("every module's gyro sign-flipped alike in tracking (all agree, all wrong; dry run)",
+                "the attitude loop feeding the turn, the poses leaving the gyros' prediction: the gyros' rate changes "
+                "run against the commanded torque, named; the attitude and rate from the poses, a landing; tilt "
+                "below 15 deg, exit 1")
+def f_gyros_flipped_in_tracking(cli, tmp_path):
+    """Flown on, the flipped rate made the attitude loop a positive feedback: 47 deg off the poses 140 ms after the
+    flip, past the 75 deg tilt bound 60 ms later, motors off 0.84 m up (hostile campaign)."""
+    _gyros_flipped(tmp_path, TRACK_START_S + 2.5, within=0.1)  # measured: 40 ms
+
+
+@estimate_fault("every module's gyro sign-flipped alike from the take-off (dry run)",
+                "named in the take-off as in tracking; a landing on the poses' attitude, tilt below 15 deg, exit 1")
+def f_gyros_flipped_from_takeoff(cli, tmp_path):
+    _gyros_flipped(tmp_path, 0.0, within=0.3)  # measured: 0.19-0.20 s (on the ground nothing turns)
+
+
+def _gyros_flipped(tmp_path, at: float, within: float) -> None:
+    faults = Faults()
+    on_period, flipped = _injected(faults, "gyros_flipped", True, at)
+    log = tmp_path / "flipped.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7573", **LANDING), duration=4.0, log_path=log,
+              faults=faults, on_period=on_period)
+    why = "gyro fault: every module's gyro turns against the commanded torque (slope "
+    assert res.phase == "done" and res.reason.startswith(why), res.reason
+    named = [t for t, _, text in res.events if "gyro fault" in text]
+    assert named and named[0] - flipped[0] <= within, (named, flipped)
+    _touched_down_upright_within(log, 15.0)  # measured: 7.6-7.7 deg
+
+
+def _gyros_failed_alike(tmp_path, value: float, what: str | tuple[str, ...], at: float = TRACK_START_S + 2.5) -> None:
     """Stuck agreeing, the gyros were flown on: the estimate held or turned, every pose rejected as "off the gyros'
     prediction", a blind landing on that attitude came to rest upside down (177-180 deg), logged as landed."""
     faults = Faults()
@@ -314,7 +347,9 @@ def _gyros_failed_alike(tmp_path, value: float, what: str, at: float = TRACK_STA
     log = tmp_path / "gyros.mcap"
     res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7569", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
-    assert res.phase == "done" and res.reason.startswith(f"gyro fault: every module's gyro {what}"), res.reason
+    whats = (what,) if isinstance(what, str) else what
+    assert res.phase == "done" and any(res.reason.startswith(f"gyro fault: every module's gyro {w}") for w in whats), \
+        res.reason
     assert res.reason.endswith("no body rate, the attitude from the poses alone")
     named = [t for t, _, text in res.events if "gyro fault" in text]
     assert named and named[0] - failed[0] <= 0.06, (named, failed)

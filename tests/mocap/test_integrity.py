@@ -135,12 +135,13 @@ def test_a_copied_source_id_is_a_fault(sessions):
     seen = []
     spy = c.declare_subscriber(KEY, lambda s: seen.append(s.source_info.source_id))
     _genuine(pub, sub, 0, 10)
-    assert seen
+    assert seen and sub.untrusted_since() is None
+    genuine = sub.measurements()
     forger = c.declare_publisher(KEY)
     seq = 10
     for k in range(20):  # forged samples one ahead of the genuine ones, interleaved with them
         seq += 1
-        payload, att = encode(PoseSample(seq + 1, time.time(), np.array([0.0, 0.002 * k, 1.0]), np.eye(3)))
+        payload, att = encode(PoseSample(seq + 1, time.time(), np.array([0.0, 0.002 * (k + 1), 1.0]), np.eye(3)))
         forger.put(payload, attachment=att, source_info=zenoh.SourceInfo(seen[0], seq + 1))
         pub.publish(np.array([0.0, 0.0, 1.0]), np.eye(3), time.time())
         time.sleep(0.01)
@@ -149,6 +150,9 @@ def test_a_copied_source_id_is_a_fault(sessions):
     spy.undeclare()
     assert sub.foreign == 0  # the id was copied: the one-publisher rule alone sees nothing
     assert sub.conflicts >= 3 and sub.fault().startswith(f"two sequences under one source id on {KEY}")
+    # Untrusted from a sample interval before the first forged sample taken, after the last genuine one before it.
+    first_forged = min(m.t for m in sub.measurements() if m.position[1] > 0.0)
+    assert genuine[-1].t < sub.untrusted_since() <= first_forged - 0.005
 
 
 def test_authenticated_stream(sessions):
