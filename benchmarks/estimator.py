@@ -5,9 +5,9 @@
 Part 1 (one core): the estimator's work in one period of a 250 Hz loop with 100 Hz mocap, for n = 2 and n = 60:
 the filter (predict with the body rate, a measurement fused every 2.5 periods, the state read, the commanded force
 of ``4n`` rotor inputs), the check of the n modules' gyros against each other (``GyroAgreement``), and both in one
-loop as the flight runs them (``Flight._estimate``), against the controller's own step (``control`` + allocation)
-in the same process: medians over repeats, and the ratio of both to the controller. Targets: 50 us at n = 2,
-200 us at n = 60.
+loop as the flight runs them (``Flight._estimate``, the gyros' torque referee fed too: ``TorqueAgreement``), against
+the controller's own step (``control`` + allocation) in the same process: medians over repeats, and the ratio of
+both to the controller. Targets: 50 us at n = 2, 200 us at n = 60.
 
 Part 2 (``--flights``): the toy figure-8 in lockstep (``fly_simulated``, 1 mm / 0.2 deg mocap noise, 5 ms latency,
 100 Hz) for several ``accel_noise`` settings: position RMSE, attitude error p95 against the controller's target,
@@ -35,7 +35,9 @@ from groundstation.control.state import RigidState
 from groundstation.control.trajectory import FlightPlan, euler_zyx, make_track
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.gyro_check import GyroAgreement
+from groundstation.estimation.gyro_torque import TorqueAgreement
 from groundstation.estimation.measurement import PoseMeasurement
+from groundstation.runtime.flight import GYROS_DISPUTED_RAD
 from groundstation.runtime.flight_config import read_assembly
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,15 +79,21 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, flo
             agreement.rate(k * dt, module_gyros[k], gyros[k], None, ages, 0.004, 0.03)
         gyro_runs.append((time.perf_counter() - t0) / periods * 1e6)
         f, agreement = RigidBodyFilter(EstimatorSettings(gyro_delay=0.01), model.mass), GyroAgreement()
+        torque = TorqueAgreement(model.inertia)
         t0 = time.perf_counter()
         for k in range(periods):
             now = k * dt
-            f.predict(now, *agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now), ages, 0.004,
-                                           0.03))
+            rate, age = agreement.rate(now, module_gyros[k], gyros[k], partial(f.pose_rate, now), ages, 0.004, 0.03)
+            f.predict(now, rate, age)
+            torque.add(now, rate)
             if k % 5 in (0, 2):
                 f.correct(poses[k])
+            if f.attitude_conflict_since is not None or f.attitude_innovation_angle > GYROS_DISPUTED_RAD:
+                torque.against()
             f.state()
-            f.command(model.allocation[:3] @ hover)
+            wrench = model.allocation @ hover
+            f.command(wrench[:3])
+            torque.command(wrench[3:])
         both_runs.append((time.perf_counter() - t0) / periods * 1e6)
         t0 = time.perf_counter()
         for k in range(periods):

@@ -42,7 +42,7 @@ class TorqueAgreementSettings:
 
 class TorqueAgreement:
     """Feed :meth:`add` (the rate flown on) and :meth:`command` (the torque sent) every period; :meth:`against`
-    judges."""
+    judges. Kept in Python floats, as the filter (numpy's cost is per call on 3-vectors)."""
 
     def __init__(self, inertia: np.ndarray, settings: TorqueAgreementSettings | None = None) -> None:
         self.settings = settings or TorqueAgreementSettings()
@@ -63,11 +63,11 @@ class TorqueAgreement:
             ax, ay, az = self._alpha
             ix, iy, iz = self._integral
             self._integral = (ix + ax * dt, iy + ay * dt, iz + az * dt)
-        if rate is None or not np.all(np.isfinite(rate)):
+        w = None if rate is None else rate.tolist()
+        if w is None or not math.isfinite(w[0] + w[1] + w[2]):
             recent.clear()
             return
-        wx, wy, wz = np.asarray(rate, float).tolist()
-        recent.append((t, (wx, wy, wz), self._integral))
+        recent.append((t, (w[0], w[1], w[2]), self._integral))
         while recent[0][0] < t - self.settings.window_s - self.settings.span_s:
             recent.popleft()
 
@@ -76,7 +76,7 @@ class TorqueAgreement:
         if torque is None:
             self._alpha = (0.0, 0.0, 0.0)
             return
-        tx, ty, tz = np.asarray(torque, float).tolist()
+        tx, ty, tz = torque.tolist()
         (a, b, c), (d, e, f), (g, h, i) = self._inverse
         self._alpha = (a * tx + b * ty + c * tz, d * tx + e * ty + f * tz, g * tx + h * ty + i * tz)
 

@@ -653,8 +653,9 @@ class Flight:
             self._emergency(t, "non-finite motor command")
             return False
         self.backend.send(u)
-        est.command(self.model.allocation[:3] @ u)
-        self.torque.command(self.model.allocation[3:] @ u)
+        wrench = self.model.allocation @ u
+        est.command(wrench[:3])
+        self.torque.command(wrench[3:])
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
         return True
