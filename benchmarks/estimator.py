@@ -37,7 +37,7 @@ from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.estimation.gyro_check import GyroAgreement
 from groundstation.estimation.gyro_torque import TorqueAgreement
 from groundstation.estimation.measurement import PoseMeasurement
-from groundstation.runtime.flight import GYROS_DISPUTED_RAD
+from groundstation.runtime.flight import DISPUTE_FRESH_S, GYROS_DISPUTED_RAD
 from groundstation.runtime.flight_config import read_assembly
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,7 +88,7 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, flo
             torque.add(now, rate)
             if k % 5 in (0, 2):
                 f.correct(poses[k])
-            if f.attitude_conflict_since is not None or f.attitude_innovation_angle > GYROS_DISPUTED_RAD:
+            if f.attitude_disagreement(now, DISPUTE_FRESH_S) > GYROS_DISPUTED_RAD:
                 torque.against()
             f.state()
             wrench = model.allocation @ hover

@@ -280,6 +280,8 @@ class RigidBodyFilter:
         self._fault = ""
         self._innovation_position: Vec3 = (0.0, 0.0, 0.0)
         self._innovation_attitude: Vec3 = (0.0, 0.0, 0.0)
+        self._attitude_seen: tuple[float, float] = (-math.inf, 0.0)
+        """(capture time s, angle rad) of the newest pose whose attitude was compared with the estimate's."""
         self._state: RigidState | None = None
         """The state handed out since the estimate last changed: the flight reads it twice a period (to control, to
         log), and its arrays cost microseconds."""
@@ -466,6 +468,7 @@ class RigidBodyFilter:
         gyro = self._gyro
         rate = math.sqrt(gyro[0] * gyro[0] + gyro[1] * gyro[1] + gyro[2] * gyro[2]) if gyro is not None else 0.0
         self._innovation_attitude = dth
+        self._attitude_seen = (m.t, off)
         if off > max(s.gate_sigma * math.sqrt(s_a), s.attitude_gate_floor + rate * s.gyro_timing):
             return self._reject(m.t, f"attitude {math.degrees(off):.1f} deg off the gyros' prediction")
         pt_before = self._pt_plain or self._pt
@@ -632,11 +635,12 @@ class RigidBodyFilter:
         nothing observes the attitude (it is held, its uncertainty growing)."""
         return self._lost is not None and self._gyro is None
 
-    @property
-    def attitude_innovation_angle(self) -> float:
-        """How far the newest measurement's attitude was from the estimate's, rad (0 if rejected for its position)."""
-        x, y, z = self._innovation_attitude
-        return math.sqrt(x * x + y * y + z * z)
+    def attitude_disagreement(self, now: float, fresh_s: float) -> float:
+        """How far the attitude of the newest pose compared with the estimate's was from it, rad, if it was captured
+        within ``fresh_s`` of ``now`` (s); else 0: a stream no longer fused (after a fault, a copied id) or gone says
+        nothing about the gyros any more."""
+        t, off = self._attitude_seen
+        return off if now - t <= fresh_s else 0.0
 
     @property
     def attitude_conflict_since(self) -> float | None:

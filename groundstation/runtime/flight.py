@@ -70,10 +70,13 @@ MAX_BLIND_DESCENT_MPS = 0.6
 Measured from 1 m: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s 1.58 m/s; at 2-5 m/s the rotors went to zero
 and it tipped 46-48 deg."""
 GYROS_DISPUTED_RAD = math.radians(1.0)
-"""A pose's attitude this far from the estimate's (or rejected for it) is the poses and the gyros disagreeing enough
-to ask the torque commanded which is wrong (:class:`TorqueAgreement`), rad: three times the largest of a nominal dry
-run (0.33 deg), under the estimator's gate (1.5 deg and more with the rate), which a sign-flipped set of gyros
-passed 80 ms after the flip, the V tilting 20 deg by then (at 1 deg: 40 ms)."""
+"""A pose's attitude this far from the estimate's (fused or rejected for it) is the poses and the gyros disagreeing
+enough to ask the torque commanded which is wrong (:class:`TorqueAgreement`), rad: three times the largest of a
+nominal dry run (0.33 deg), under the estimator's gate (1.5 deg and more with the rate), which a sign-flipped set of
+gyros passed 80 ms after the flip, the V tilting 20 deg by then (at 1 deg: 40 ms)..."""
+DISPUTE_FRESH_S = 0.1
+"""...if that pose was captured this recently, s: once the poses are no longer compared (a fault latched on them, a
+copied id, an outage) nothing disputes the gyros, and a landing flown on them alone must keep them."""
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
 RATE_WINDOW_S = 1.0
@@ -354,9 +357,9 @@ class Flight:
         """The flight's only source of state (``estimator``: one that has already followed the poses, in preflight;
         by default a new one with the default settings)."""
         self.gyros = GyroAgreement()
+        """The modules' gyros judged against each other (a failed IMU lands the flight)."""
         self.torque = TorqueAgreement(self.model.inertia)
         """The gyros against the torque commanded: the referee when they and the poses disagree."""
-        """The modules' gyros judged against each other (a failed IMU lands the flight)."""
         self.policy = policy or FailsafePolicy()
         self.log = log
         self.requests = requests or Requests()
@@ -454,12 +457,13 @@ class Flight:
             self._forgotten = est.forget_since(since)
         for m in () if self._poses_untrusted else poses:
             est.correct(m)
-        conflict = est.attitude_conflict_since
-        disputed = conflict is not None or est.attitude_innovation_angle > GYROS_DISPUTED_RAD
+        disputed = est.attitude_disagreement(now, DISPUTE_FRESH_S) > GYROS_DISPUTED_RAD
         if disputed and self.gyros.lost_since is None and (why := self.torque.against()):
             # The poses turn one way, the gyros another: a frozen or forged stream, or every gyro wrong alike (a
             # sign flipped: the attitude loop then feeds the turn, and the V tipped past 75 deg 0.2 s after it
             # began, the poses rejected as "off the gyros' prediction"). The torque commanded tells which.
+            # Condemned from before the poses were first rejected for it: that fault was the gyros' (est.gyros_lost).
+            conflict = est.attitude_conflict_since
             self.gyros.condemn(min(conflict or math.inf, now - self.torque.settings.window_s),
                                f"every module's gyro turns against the commanded torque ({why}): a sign or axes "
                                f"wrong; no body rate, the attitude from the poses alone")
