@@ -90,14 +90,23 @@ class Assembly:
         return total
 
     @cached_property
+    def _corners(self) -> np.ndarray:
+        """(8n, 3) the corners of every module's frame box, body frame, m."""
+        hx, hy, hz = self.params.frame_half_extents
+        box = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        frames = zip(self.module_positions, self.module_rotations, strict=True)
+        return np.concatenate([p + box @ r.T for p, r in frames])
+
+    @cached_property
     def resting_height(self) -> float:
         """COM height at which the lowest module corner touches the ground (body frame level), m: where a flight
         plan starts when no mocap has seen the assembly yet."""
-        hx, hy, hz = self.params.frame_half_extents
-        corners = np.array([[sx * hx, sy * hy, sz * hz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-        lowest = min(float(np.min((p + corners @ r.T)[:, 2]))
-                     for p, r in zip(self.module_positions, self.module_rotations, strict=True))
-        return -lowest
+        return -float(self._corners[:, 2].min())
+
+    def clearance(self, height: float, rotation: np.ndarray) -> float:
+        """How far the lowest module corner is above the ground, m, with the COM ``height`` m above where it rests
+        level (:attr:`resting_height`) and the body at ``rotation`` (world from body): 0 or less is touching."""
+        return height + self.resting_height + float((self._corners @ np.asarray(rotation)[2]).min())
 
     @cached_property
     def controllable_dof(self) -> int:

@@ -98,7 +98,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
                            f"(WebSocket subprotocol {' or '.join(SUBPROTOCOLS)})", err=True)
             result = fly(flight, duration=duration, log_path=log_path, requests=requests, on_status=on_status,
                          handle_signals=True, activity=activity, live_port=live_port)
-            _end_on_signal(LANDING_SIGNALS, _status(result))
+            held = _hold_signals(LANDING_SIGNALS)
     finally:
         done.set()
         forget_lost_terminal()  # hung up in flight (the signal handler saw a live terminal) or after it
@@ -106,14 +106,16 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
             renderer.join(2.0)
             live.stop()
     try:
-        return _report(flight, result, as_json)
+        status = _report(flight, result, as_json)
     except OSError as exc:
         # Output that cannot be written (stdout on a full disk, a pipe or terminal gone) must not turn a flight
         # into a traceback: its summary is in the log.
         with contextlib.suppress(OSError):
             click.echo(f"groundstation: cannot print the flight's summary ({exc.strerror or exc}); it is in the "
                        f"log {result.log_path}", err=True)
-        return _status(result)
+        status = _status(result)
+    _end_on_signal(LANDING_SIGNALS, status, now=bool(held))
+    return status
 
 
 def _status(result) -> int:
@@ -121,19 +123,31 @@ def _status(result) -> int:
     return EXIT_EMERGENCY if not result.nominal else EXIT_DEGRADED if result.degraded else 0
 
 
-def _end_on_signal(signals, status: int) -> None:
-    """From the flight's end (motors off, log finalized) to the process's: one of ``signals`` ends the process at
-    once with the flight's ``status``, what was printed flushed. By default a SIGTERM or Ctrl-C in that time (the
-    summary printing, Zenoh closing) ended it 143 or 130 after a summary saying "done" (hostile campaign); ignored,
-    a shutdown that hangs could not be cut short. Left installed to the process's end (:func:`groundstation.cli.main`
-    restores the caller's handlers when called in-process)."""
+def _hold_signals(signals) -> list[int]:
+    """From the flight's end (motors off, log finalized) until its summary is printed: ``signals`` are noted (the
+    list returned), not acted on, so the summary is whole (ended at once, a Ctrl-C twice after a refused preflight
+    left no summary at all; by default a SIGTERM or Ctrl-C then ended the process 143 or 130 after a summary saying
+    "done": hostile campaigns)."""
+    held: list[int] = []
+    for s in signals:
+        signal.signal(s, lambda signum, frame: held.append(signum))
+    return held
 
-    def handler(signum, frame):
+
+def _end_on_signal(signals, status: int, now: bool = False) -> None:
+    """After the summary: one of ``signals`` (or ``now``, one came while it printed) ends the process at once with
+    the flight's ``status``, what was printed flushed; ignored, a shutdown that hangs (Zenoh closing) could not be
+    cut short. Left installed to the process's end (:func:`groundstation.cli.main` restores the caller's handlers
+    when called in-process)."""
+
+    def handler(signum=None, frame=None):
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
         os._exit(status)
 
+    if now:
+        handler()
     for s in signals:
         signal.signal(s, handler)
 

@@ -30,3 +30,20 @@ def test_hinges_about_one_axis_only_cannot_be_fully_actuated():
     assert np.allclose(chain.allocation[1], 0)
     ell = Assembly(Topology.from_code("oES"), P, np.radians([0, 10, -30, 40]))  # one x hinge, one y hinge
     assert ell.controllable_dof == 6
+
+
+def test_clearance_of_the_lowest_frame_corner():
+    """A flat pair (modules at +-l_c along x, frames level, half extents hx, hz): at rest its lowest corners touch;
+    lifted, they clear by the lift; pitched by theta, the far module's outer bottom edge dips by
+    (l_c + hx) sin(theta) + hz cos(theta) - hz."""
+    from groundstation.rotations import rotvec_to_matrix
+
+    a = Assembly(Topology.from_code("oE"), P, np.zeros(3))
+    hx, _, hz = P.frame_half_extents
+    np.testing.assert_allclose(np.abs(a.module_positions[:, 0]), P.l_c)
+    assert a.resting_height == pytest.approx(hz)
+    assert a.clearance(0.0, np.eye(3)) == pytest.approx(0.0, abs=1e-12)
+    assert a.clearance(0.1, np.eye(3)) == pytest.approx(0.1)
+    theta = np.radians(20.0)
+    dip = (P.l_c + hx) * np.sin(theta) + hz * np.cos(theta) - hz
+    assert a.clearance(0.1, rotvec_to_matrix([0.0, theta, 0.0])) == pytest.approx(0.1 - dip)
