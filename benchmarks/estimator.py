@@ -88,7 +88,8 @@ def _period_costs(n: int, periods: int, repeats: int) -> tuple[float, float, flo
             torque.add(now, rate)
             if k % 5 in (0, 2):
                 f.correct(poses[k])
-            if f.attitude_disagreement(now, DISPUTE_FRESH_S) > GYROS_DISPUTED_RAD:
+            seen, off = f.attitude_seen
+            if off > GYROS_DISPUTED_RAD and now - seen <= DISPUTE_FRESH_S:
                 torque.against()
             f.state()
             wrench = model.allocation @ hover

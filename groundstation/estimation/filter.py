@@ -160,6 +160,11 @@ class Estimate:
 LOST_ATTITUDE_SIGMA = 0.5
 """Std of the attitude when the gyros are lost, rad (:meth:`RigidBodyFilter._lose_gyros`): the next pose is taken
 whole."""
+LOST_ATTITUDE_GATE = math.radians(20.0)
+"""With the gyros lost, a pose's attitude is rejected only this far (or its gate's sigmas) from the estimate's, rad:
+the estimate is then the poses' own, turned at the rate they showed, and lags them when the body's turn changes (a
+push in the take-off: 7.9 deg, every pose rejected, the attitude held, and the V rolled to 98-105 deg); a rigid body
+mis-fit or flipped in the mocap is still refused."""
 FORGET_S = 0.25
 """How far back :meth:`RigidBodyFilter.forget_since` reaches, s. A forger interleaving its samples with the genuine
 ones is a fault within ~40 ms; one that sends a few a second takes up to a second (three conflicts within one:
@@ -472,7 +477,8 @@ class RigidBodyFilter:
         rate = math.sqrt(gyro[0] * gyro[0] + gyro[1] * gyro[1] + gyro[2] * gyro[2]) if gyro is not None else 0.0
         self._innovation_attitude = dth
         self._attitude_seen = (m.t, off)
-        if off > max(s.gate_sigma * math.sqrt(s_a), s.attitude_gate_floor + rate * s.gyro_timing):
+        floor = s.attitude_gate_floor + rate * s.gyro_timing if self._lost is None else LOST_ATTITUDE_GATE
+        if off > max(s.gate_sigma * math.sqrt(s_a), floor):
             return self._reject(m.t, f"attitude {math.degrees(off):.1f} deg off the gyros' prediction")
         pt_before = self._pt_plain or self._pt
         cp, cv, cd, ct = self._fuse(m.t, dp, s_p, dth, s_a)
@@ -638,12 +644,12 @@ class RigidBodyFilter:
         nothing observes the attitude (it is held, its uncertainty growing)."""
         return self._lost is not None and self._gyro is None
 
-    def attitude_disagreement(self, now: float, fresh_s: float) -> float:
-        """How far the attitude of the newest pose compared with the estimate's was from it, rad, if it was captured
-        within ``fresh_s`` of ``now`` (s); else 0: a stream no longer fused (after a fault, a copied id) or gone says
-        nothing about the gyros any more."""
-        t, off = self._attitude_seen
-        return off if now - t <= fresh_s else 0.0
+    @property
+    def attitude_seen(self) -> tuple[float, float]:
+        """(capture time s, angle rad): how far the attitude of the newest pose compared with the estimate's was
+        from it, fused or rejected for it (a stream no longer compared, after a fault or a copied id, leaves it
+        ageing: -inf before the first)."""
+        return self._attitude_seen
 
     @property
     def attitude_conflict_since(self) -> float | None:

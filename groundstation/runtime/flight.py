@@ -74,6 +74,13 @@ GYROS_DISPUTED_RAD = math.radians(1.0)
 enough to ask the torque commanded which is wrong (:class:`TorqueAgreement`), rad: three times the largest of a
 nominal dry run (0.33 deg), under the estimator's gate (1.5 deg and more with the rate), which a sign-flipped set of
 gyros passed 80 ms after the flip, the V tilting 20 deg by then (at 1 deg: 40 ms)..."""
+DISPUTED_LANDING_M = 0.1
+"""A landing whose poses and gyros disagree there (:data:`GYROS_DISPUTED_RAD`, a frame within
+:data:`CONTACT_MARGIN_M` of the ground) ends with the motors off if the estimate is this close above the ground, m:
+a drop of at most this..."""
+DISPUTED_POSES = 3
+"""...once this many poses in a row disagree: the first pose after a blind landing's outage disagrees with the
+estimate that drifted (1.1 deg), and is fused; gyros gone wrong keep every pose off."""
 CONTACT_MARGIN_M = 0.03
 """...and if no module's frame is within this of the ground, m (the estimate's height error at a touchdown, and a
 frame's legs and bumpers, which its box leaves out)."""
@@ -414,6 +421,13 @@ class Flight:
         """No pose is fused any more: the stream carried two sequences under one source id (a copied id)."""
         self._forgotten = 0
         """Poses taken back when the stream turned untrusted, not yet named in an event."""
+        self._attitude_seen_t = -math.inf
+        """Capture time of the newest pose whose attitude the estimator compared, s."""
+        self._disputes = 0
+        """Poses in a row, to the newest compared, whose attitude was more than :data:`GYROS_DISPUTED_RAD` off."""
+        self._disputed_on_the_ground = 0.0
+        """How far a fresh pose's attitude was from the gyros' this period, rad, with a module's frame near the
+        ground (where the torque cannot referee them); 0 otherwise."""
 
     # -- transitions ----------------------------------------------------------------------------------------------
     def _log_time(self, t: float) -> float:
@@ -460,9 +474,14 @@ class Flight:
             self._forgotten = est.forget_since(since)
         for m in () if self._poses_untrusted else poses:
             est.correct(m)
-        disputed = est.attitude_disagreement(now, DISPUTE_FRESH_S) > GYROS_DISPUTED_RAD
-        if disputed and self.gyros.lost_since is None and self._clear_of_the_ground(est.state()) and \
-                (why := self.torque.against()):
+        seen, disagreement = est.attitude_seen
+        if seen > self._attitude_seen_t:  # a pose compared since the last period: one more in a run, or none
+            self._attitude_seen_t = seen
+            self._disputes = self._disputes + 1 if disagreement > GYROS_DISPUTED_RAD else 0
+        disputed = self._disputes > 0 and now - seen <= DISPUTE_FRESH_S and self.gyros.lost_since is None
+        clear = disputed and self._clear_of_the_ground(est.state())
+        self._disputed_on_the_ground = disagreement if disputed and not clear else 0.0
+        if clear and (why := self.torque.against()):
             # The poses turn one way, the gyros another: a frozen or forged stream, or every gyro wrong alike (a
             # sign flipped: the attitude loop then feeds the turn, and the V tipped past 75 deg 0.2 s after it
             # began, the poses rejected as "off the gyros' prediction"). The torque commanded tells which.
@@ -593,6 +612,16 @@ class Flight:
                 # plan's, or on stale poses) goes on, blind if need be, named once per kind of fault.
                 self._begin_landing(t, state, why, blind=bool(est.fault()) or self._poses_untrusted)
             self._mocap_fault_named = kind
+        if self._disputed_on_the_ground and self._disputes >= DISPUTED_POSES and self.phase == Phase.LANDING and \
+                self._height < DISPUTED_LANDING_M:
+            # The torque cannot referee where the ground may push (contact torques), and flown on gyros gone wrong
+            # there (a sign flipped 0.1 s before touchdown) the V rolled over on the ground, motors running, to
+            # 75-78 deg. Here the landing is as good as done: motors off.
+            self._event(t, "warning", f"the poses and the gyros disagree by "
+                                      f"{math.degrees(self._disputed_on_the_ground):.1f} deg {self._height * 100:.0f} "
+                                      f"cm above the ground: the landing ends here, motors off")
+            self._finish(t)
+            return False
         if self.gyros.fault and not self._gyro_fault_named and state is not None and \
                 (self.phase.airborne or self.phase == Phase.LANDING):
             self._gyro_fault_named = True  # a landing under way (the plan's too) goes on, the fault named once

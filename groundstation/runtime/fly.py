@@ -434,11 +434,17 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
                 why_not = str(exc)
             except BaseException as exc:
                 started.set()
-                why_not = str(exc) if isinstance(exc, PreflightError) else (
-                    requests.abort_reason("in preflight") if isinstance(exc, KeyboardInterrupt)
-                    else f"{type(exc).__name__}: {exc}")
-                _end(p, flight, why_not, _since(wall0), bounds, log, to_log)
-                raise
+                if isinstance(exc, KeyboardInterrupt) and requests.stop.is_set() and flight is None:
+                    # The operator's second signal before arming, which interrupts what the preflight waits for:
+                    # the same end as one the preflight saw (_Stopped). Re-raised, the command said "interrupted"
+                    # (exit 130, no summary) or not, by the signal's timing (hostile campaign).
+                    why_not = requests.abort_reason("in preflight")
+                else:
+                    why_not = str(exc) if isinstance(exc, PreflightError) else (
+                        requests.abort_reason("in preflight") if isinstance(exc, KeyboardInterrupt)
+                        else f"{type(exc).__name__}: {exc}")
+                    _end(p, flight, why_not, _since(wall0), bounds, log, to_log)
+                    raise
             ended_cleanly[0] = flight is None or flight.phase in (Phase.DONE, Phase.ABORTED)
             phase, reason, metrics, degraded = _end(p, flight, why_not, _since(wall0), bounds, log, to_log)
     except BaseException:
@@ -633,6 +639,9 @@ def _install_signals(requests: Requests, started: threading.Event):
         if requests.land.is_set() and signum != signal.SIGHUP and not not_asked:
             requests.stop.set()
             if not started.is_set():
+                # Once: a third signal, arriving while the end is logged (before the except clause that catches
+                # this one could set it), made the command "interrupted" after all.
+                started.set()
                 raise KeyboardInterrupt
         requests.land.set()
 

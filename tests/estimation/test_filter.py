@@ -255,18 +255,19 @@ def test_poses_taken_back_leave_the_estimate_of_a_twin_that_never_saw_them():
     assert forged.forget_since(2.0 + DT / 2) == 0  # nothing left to take back
 
 
-def test_a_poses_attitude_disagreement_is_reported_while_fresh():
-    """A pose 3 deg off the gyros' attitude (rejected for it) is a disagreement of 3 deg while it is recent; 0.1 s
-    on, with no pose since, nothing disputes the gyros."""
+def test_a_poses_attitude_disagreement_is_reported_with_its_capture_time():
+    """A pose 3 deg off the gyros' attitude (rejected for it): the filter says how far off, and when it was
+    captured; poses that are no longer compared leave it as it was."""
     truth = lambda t: (np.array([0.0, 0.0, 1.0]), np.eye(3))  # noqa: E731
     f = RigidBodyFilter(EstimatorSettings(), MASS)
     _run(f, 1.0, truth)
-    assert f.attitude_disagreement(1.0, 0.1) < math.radians(0.5)  # the mocap's noise (0.1 deg)
+    seen, off = f.attitude_seen
+    assert seen == pytest.approx(1.0) and off < math.radians(0.5)  # the mocap's noise (0.1 deg)
     f.predict(1.0 + DT, np.zeros(3))
     tilted = rotvec_to_matrix([math.radians(3.0), 0.0, 0.0])
     assert not f.correct(PoseMeasurement(1.0 + DT, np.array([0.0, 0.0, 1.0]), tilted))
-    assert math.degrees(f.attitude_disagreement(1.0 + DT, 0.1)) == pytest.approx(3.0, abs=0.3)
-    assert f.attitude_disagreement(1.0 + DT + 0.11, 0.1) == 0.0
+    seen, off = f.attitude_seen
+    assert seen == 1.0 + DT and math.degrees(off) == pytest.approx(3.0, abs=0.3)
 
 
 def test_without_poses_the_uncertainty_grows_and_shrinks_again_when_they_return():

@@ -153,6 +153,34 @@ def f_sigterm_in_preflight(cli, tmp_path):
     assert r["complete"] and r["phase"] == "aborted" and r["reason"] == reason
 
 
+@process_fault("Ctrl-C every 3 ms from the moment fly's log is written until it exits (in its preflight: an operator "
+               "hammering Ctrl-C)",
+               "never armed; the summary printed and the log finalized, both saying aborted by the operator in "
+               "preflight; exit 1 (a signal arriving while the end was logged made it 'interrupted', exit 130, no "
+               "summary, in about half the runs)")
+def f_ctrl_c_storm_in_preflight(cli, tmp_path):
+    log = tmp_path / "storm.mcap"
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7678"), log)
+    sent = 0
+    try:
+        # From its log's first bytes (its writer has started): interrupted while still connecting, before that, it
+        # leaves no log and says so (exit 130).
+        _wait_until(lambda: log.exists() and log.stat().st_size > 0, proc, "opened its log")
+        while proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGINT)
+                sent += 1
+            time.sleep(0.003)
+        out, err = _ended(proc)
+    finally:
+        proc.kill()
+    reason = "stopped by the operator in preflight (SIGINT): never armed"
+    assert sent >= 2 and proc.returncode == 1, (sent, proc.returncode, err)
+    assert json.loads(out)["phase"] == "aborted" and json.loads(out)["reason"] == reason, out
+    r = _replayed(cli, log)
+    assert r["complete"] and r["phase"] == "aborted" and r["reason"] == reason
+
+
 def _signalled_in_flight(cli, tmp_path, signals: list[signal.Signals], port: int, lands_on: signal.Signals):
     """``fly`` sent ``signals`` (0.3 s apart) once airborne; (exit code, stderr, its log replayed), the log's landing
     on ``lands_on`` checked."""

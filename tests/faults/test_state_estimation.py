@@ -326,6 +326,40 @@ def f_gyros_flipped_from_takeoff(cli, tmp_path):
     _gyros_flipped(tmp_path, 0.0, within=0.3)  # measured: 0.19-0.20 s (on the ground nothing turns)
 
 
+@estimate_fault("every module's gyro sign-flipped alike 0.2 s before the plan's touchdown (dry run)",
+                "near the ground the torque cannot referee them (the ground's contact torques): three poses in a row "
+                "off the gyros' attitude within 10 cm of it end the landing, motors off, named; upright on the "
+                "ground (before: rolled on the ground to 75-78 deg, motors running)")
+def f_gyros_flipped_before_touchdown(cli, tmp_path):
+    faults = Faults()
+    landing_starts = TRACK_START_S + 2.0 + SETTLE_S
+    on_period, flipped = _injected(faults, "gyros_flipped", True, landing_starts + 1.3)
+    log = tmp_path / "touchdown.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7574", **LANDING), duration=2.0, log_path=log,
+              faults=faults, on_period=on_period)
+    assert flipped and res.phase == "done", res.reason
+    ended = [t for t, _, text in res.events if text.endswith("above the ground: the landing ends here, motors off")]
+    assert ended and ended[0] - flipped[0] <= 0.15, (ended, flipped, res.events)
+    _touched_down_upright_within(log, 15.0)
+
+
+@estimate_fault("every module's gyro sign-flipped alike from the take-off, and a 5 N push for 0.2 s in it (dry run)",
+                "condemned by the torque as without the push; the poses then the only attitude, followed through the "
+                "push's turn (the gyros' 1.5 deg gate rejected them all, the attitude was held: rolled to 98-105 "
+                "deg); tilt below 40 deg (the push's own: 30 deg with good gyros), exit 1")
+def f_gyros_flipped_and_a_push_in_the_takeoff(cli, tmp_path):
+    faults = Faults(gyros_flipped=True)
+    log = tmp_path / "pushed.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7575"), duration=3.0, log_path=log,
+              faults=faults, on_period=lambda t: setattr(faults, "push_n", (5.0, 0.0, 0.0) if 0.3 <= t < 0.5
+                                                         else None))
+    assert res.phase == "done" and res.reason.startswith(
+        "gyro fault: every module's gyro turns against the commanded torque"), res.reason
+    truth = _truth(log)
+    assert max(tilt for *_, tilt in truth) < 40.0  # measured: 30-33 deg
+    assert abs(truth[-1][2] - truth[0][2]) < 0.06  # the motors off at most a few cm up (measured: 3.3-3.4 cm)
+
+
 def _gyros_flipped(tmp_path, at: float, within: float) -> None:
     faults = Faults()
     on_period, flipped = _injected(faults, "gyros_flipped", True, at)
