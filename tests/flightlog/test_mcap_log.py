@@ -59,8 +59,11 @@ def test_the_writer_holds_its_log_for_its_life(tmp_path):
 def _run_and_kill(path: Path, kill) -> tuple[dict[float, int], float]:
     """Run WRITER logging to ``path`` for 4 s, then ``kill(proc)`` (``proc.writer_pid``: its writer process);
     returns {elapsed s: k logged} and the last elapsed s."""
+    # Its own process group, as in a terminal, and Ctrl-C's default action (an ignored SIGINT is inherited: a test
+    # runner in the background, or a test that left it ignored, would make the script deaf to it).
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True,
-                            cwd=ROOT, start_new_session=True)  # its own process group, as in a terminal
+                            cwd=ROOT, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     proc.writer_pid = int(proc.stdout.readline().split()[1])
     written_by = {}
     t_kill = time.monotonic() + 4.0
