@@ -12,9 +12,10 @@ and the torque it then commands is answered by the opposite reading. Measured on
 hostile campaign): +0.3..+0.9 before, -0.46..-0.67 from 25 ms after the flip, with an excitation (the squared
 predicted changes summed) of 4 to 900 against at most 0.8 where the slope was ever negative in a nominal flight.
 
-Asked only while the poses and the gyros disagree (a pose's attitude, captured within the last 0.1 s, more than a
-degree from the estimate's: :meth:`RigidBodyFilter.attitude_disagreement`): a shove or a gust, which turns the gyros
-and the poses alike, is no disagreement, however it correlates with the torque that answers it.
+Asked only while the poses and the gyros disagree (the newest pose compared, captured within the last 0.1 s, more
+than a degree from the estimate's attitude: :attr:`RigidBodyFilter.attitude_seen`) and every module's frame clears
+the ground by 3 cm (:meth:`Flight._clear_of_the_ground`): a shove or a gust turns the gyros and the poses alike, and
+the ground's contact torques are no command's.
 """
 
 from __future__ import annotations

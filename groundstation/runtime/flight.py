@@ -474,6 +474,17 @@ class Flight:
             self._forgotten = est.forget_since(since)
         for m in () if self._poses_untrusted else poses:
             est.correct(m)
+        self._referee_gyros(now)
+        state = est.state()
+        if state is not None:
+            self._height = float(state.position[2]) - float(self.plan.ground[2])
+        return state, est.age(now)
+
+    def _referee_gyros(self, now: float) -> None:
+        """Count the poses in a row whose attitude is off the gyros' and, while they disagree clear of the ground, ask
+        the commanded torque which is wrong (:class:`TorqueAgreement`); near the ground the landing decides
+        (:data:`DISPUTED_LANDING_M`)."""
+        est = self.estimator
         seen, disagreement = est.attitude_seen
         if seen > self._attitude_seen_t:  # a pose compared since the last period: one more in a run, or none
             self._attitude_seen_t = seen
@@ -490,10 +501,6 @@ class Flight:
             self.gyros.condemn(min(conflict or math.inf, now - self.torque.settings.window_s),
                                f"every module's gyro turns against the commanded torque ({why}): a sign or axes "
                                f"wrong; no body rate, the attitude from the poses alone")
-        state = est.state()
-        if state is not None:
-            self._height = float(state.position[2]) - float(self.plan.ground[2])
-        return state, est.age(now)
 
     def _clear_of_the_ground(self, state: RigidState | None) -> bool:
         """Every module corner more than ``CONTACT_MARGIN_M`` above the ground the flight took off from, by the
