@@ -133,6 +133,80 @@ def _to_rest(p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, dur
             a0 + 6.0 * c3 * t + 12.0 * c4 * t ** 2 + 20.0 * c5 * t ** 3)
 
 
+def _pieces(w: float, dist: float, cruise: float, end: float, accel: float) -> list[tuple[float, float]] | None:
+    """Constant-acceleration pieces (duration s, acceleration m/s^2, along the motion) from speed ``w`` to speed
+    ``end`` over ``dist``, m, cruising at up to ``cruise`` between, changing speed at ``accel`` (or, to make
+    ``end`` where it cannot at ``accel``, braking harder); None if there is no way down (``dist`` <= 0)."""
+    if dist <= 0.0:
+        return None
+    if w > end and (w * w - end * end) / (2.0 * accel) > dist:  # too fast to slow down at accel: brake harder
+        a = (w * w - end * end) / (2.0 * dist)
+        return [((w - end) / a, -a)]
+    # The peak speed c of speeding up then slowing down over exactly dist: (c^2 - w^2 + c^2 - end^2) / 2a = dist
+    # (signed speeds: w < 0 climbs).
+    c = max(end, min(cruise, math.sqrt(accel * dist + 0.5 * (w * w + end * end))) if w <= cruise else cruise)
+    first = (c * c - w * w) / (2.0 * math.copysign(accel, c - w)) if c != w else 0.0
+    last = (c * c - end * end) / (2.0 * accel)
+    pieces = [(abs(c - w) / accel, math.copysign(accel, c - w)), (max(0.0, dist - first - last) / c, 0.0),
+              ((c - end) / accel, -accel)]
+    return [(d, a) for d, a in pieces if d > 0.0]
+
+
+@dataclass(frozen=True)
+class Descent:
+    """A vertical descent flown without a height measurement (a blind landing): at up to ``cruise_mps`` while
+    higher than ``slow_m`` above the ground, then at ``touchdown_mps`` through it to ``depth_m`` below, changing
+    speed at ``accel_mps2`` (only the collective thrust changes: the attitude does not). Flown as the quintic of
+    a planned landing, at a mean of 0.5 m/s, the estimate's uncertainty grew past its bound from 1.6 m (it grows
+    with the time flown blind, to the 2.5th power), and the touchdown speed was the quintic's wherever the ground
+    cut it (0.6-0.8 m/s)."""
+
+    z0: float
+    """Start height, world, m."""
+    v0: float
+    """Start vertical velocity, world (up), m/s."""
+    ground_z: float
+    """The ground, world, m."""
+    cruise_mps: float
+    touchdown_mps: float
+    slow_m: float
+    depth_m: float
+    accel_mps2: float
+
+    @cached_property
+    def _pieces(self) -> tuple[tuple[float, float, float, float], ...]:
+        """(start s, start height m, start velocity m/s, acceleration m/s^2), world up."""
+        u, a, slow = -self.v0, self.accel_mps2, self.touchdown_mps  # downwards
+        to_slow = self.z0 - (self.ground_z + self.slow_m)
+        # Faster down to slow_m if there is room to reach the touchdown speed by then: else at that speed at most.
+        fast = _pieces(u, to_slow, self.cruise_mps, slow, a) \
+            if u > slow or to_slow > (slow * slow - u * u) / (2.0 * a) else None
+        last = _pieces(slow, self.slow_m + self.depth_m, slow, 0.0, a) if fast else \
+            _pieces(u, self.z0 - (self.ground_z - self.depth_m), slow, 0.0, a)
+        pieces, t, z, v = [], 0.0, self.z0, self.v0
+        for d, acc in (fast or []) + (last or []):
+            pieces.append((t, z, v, -acc))
+            z, v, t = z + v * d - 0.5 * acc * d * d, v - acc * d, t + d
+        pieces.append((t, z, 0.0, 0.0))
+        return tuple(pieces)
+
+    @property
+    def duration(self) -> float:
+        """Until it stops below the ground, s."""
+        return self._pieces[-1][0]
+
+    @property
+    def end_z(self) -> float:
+        """Where it stops, world, m."""
+        return self._pieces[-1][1]
+
+    def __call__(self, t: float) -> tuple[float, float, float]:
+        """Height (m), vertical velocity (m/s) and acceleration (m/s^2) at ``t`` s, world up."""
+        t0, z, v, a = next(p for p in reversed(self._pieces) if p[0] <= t) if t > 0.0 else self._pieces[0]
+        dt = max(0.0, t - t0)
+        return z + v * dt + 0.5 * a * dt * dt, v + a * dt, a
+
+
 @dataclass(frozen=True)
 class Landing:
     """A landing begun wherever the assembly is and however it moves (a failsafe, the operator): the reference
@@ -151,6 +225,15 @@ class Landing:
     """m"""
     duration: float
     """Of the descent, s; the horizontal stop takes at most this."""
+    descent: Descent | None = None
+    """Flown blind: the vertical profile (ending at ``touchdown_z`` after ``duration``: :meth:`blind`), not the
+    quintic."""
+
+    @classmethod
+    def blind(cls, start, velocity, acceleration, descent: Descent) -> Landing:
+        """A landing whose height follows ``descent`` (its start height and vertical velocity: ``start``'s and
+        ``velocity``'s)."""
+        return cls(start, velocity, acceleration, descent.end_z, descent.duration, descent)
 
     @cached_property
     def _plan(self) -> tuple[np.ndarray, ...]:
@@ -171,9 +254,12 @@ class Landing:
         p0, v_z, a_z, v_h, a_h, p1, stop_s = self._plan
         t = max(t, 0.0)
         ph, vh, ah = _to_rest(p0, v_h, a_h, p1, stop_s, t)
-        pz, vz, az = _to_rest(p0, v_z, a_z, p1, self.duration, t)
-        return Setpoint(np.array([ph[0], ph[1], pz[2]]), np.array([vh[0], vh[1], vz[2]]),
-                        np.array([ah[0], ah[1], az[2]]), np.eye(3))
+        if self.descent is None:
+            pz, vz, az = (x[2] for x in _to_rest(p0, v_z, a_z, p1, self.duration, t))
+        else:
+            pz, vz, az = self.descent(t)
+        return Setpoint(np.array([ph[0], ph[1], pz]), np.array([vh[0], vh[1], vz]), np.array([ah[0], ah[1], az]),
+                        np.eye(3))
 
 
 @dataclass(frozen=True)

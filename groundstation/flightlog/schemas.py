@@ -91,7 +91,8 @@ CONTROL = _obj("one control period", {
     "mocap_age_s": _num("time since the capture of the newest pose fused, s (absent before the first)"),
     "mocap": _obj("the pose subscriber's counters so far (as /mocap/stats has them once a second)", _MOCAP_COUNTS),
     "estimate": _obj("the estimator's uncertainty and health", {
-        "position_sigma_m": _num("position std per axis, m"),
+        "position_sigma_m": _num("horizontal position std per axis, m"),
+        "height_sigma_m": _num("height std, m"),
         "velocity_sigma_mps": _num("velocity std per axis, m/s"),
         "attitude_sigma_deg": _num("attitude std per axis, deg"),
         "gyro_bias_radps": _vec(3, "estimated gyro bias, body frame, rad/s"),

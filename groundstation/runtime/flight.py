@@ -14,7 +14,7 @@ States and transitions (each logged as an event)::
 
 The state comes from the estimator (:mod:`groundstation.estimation`): mocap fused with the modules' gyros and the
 commanded wrench, at the period's time. Through a mocap outage it flies on the estimate (a blind landing) while
-the position's uncertainty stays within ``max_position_sigma_m``.
+the position's and the height's uncertainties stay within ``max_position_sigma_m`` and ``max_height_sigma_m``.
 
 ``landing`` descends from where the reference is to below the ground and ends in ``done``: motors off and the
 modules disarmed (they can fly again). ``emergency`` sends the backend's emergency stop in the same period it is
@@ -44,6 +44,7 @@ from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import (
     LANDING_DEPTH,
     MAX_LANDING_MPS,
+    Descent,
     FlightPlan,
     Landing,
     roll_pitch_yaw,
@@ -65,15 +66,19 @@ from groundstation.runtime.loop import (
 from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 
 MAX_BLIND_DESCENT_MPS = 0.6
-"""The fastest mean descent of a blind landing (``failsafe.blind_descent_mps``; planned ones:
+"""The fastest touchdown a blind landing may plan (``failsafe.blind_descent_mps``; planned landings:
 :data:`~groundstation.control.trajectory.MAX_LANDING_MPS`), m/s: flown on the estimate alone, it trails more.
-Measured from 1 m: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s 1.58 m/s; at 2-5 m/s the rotors went to zero
-and it tipped 46-48 deg."""
+Measured from 1 m, with a quintic descent of this mean speed: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s
+1.58 m/s; at 2-5 m/s the rotors went to zero and it tipped 46-48 deg."""
 GYROS_DISPUTED_RAD = math.radians(1.0)
 """A pose's attitude this far from the estimate's (fused or rejected for it) is the poses and the gyros disagreeing
 enough to ask the torque commanded which is wrong (:class:`TorqueAgreement`), rad: three times the largest of a
 nominal dry run (0.33 deg), under the estimator's gate (1.5 deg and more with the rate), which a sign-flipped set of
 gyros passed 80 ms after the flip, the V tilting 20 deg by then (at 1 deg: 40 ms)..."""
+MAX_UNSEEN_ATTITUDE_SIGMA = math.radians(15.0)
+"""Flying blind with no gyro either (nothing observes the attitude, held with no torque on it: its uncertainty grows
+at ``EstimatorSettings.unseen_rate``), the motors stop once the attitude's std passes this, rad: ~0.5 s after the
+last pose. A level landing is not level beyond it; the horizontal position's bound, 1 m, came 0.75 s after."""
 DISPUTED_LANDING_M = 0.1
 """A landing whose poses and gyros disagree there (:data:`GYROS_DISPUTED_RAD`, a frame within
 :data:`CONTACT_MARGIN_M` of the ground) ends with the motors off if the estimate is this close above the ground, m:
@@ -184,14 +189,20 @@ class FailsafePolicy:
     five periods are logged as warnings."""
     on_log_failure: Literal["land", "continue"] = "land"
     """The log writer failed (a full disk): land, or fly on unlogged."""
-    max_position_sigma_m: float = 0.5
-    """Flying on the estimate alone (mocap stale, or its poses rejected), the motors stop once the position's
-    standard deviation (per axis) passes this, m: until then the flight lands blind, level, at
-    ``blind_descent_mps``."""
+    max_position_sigma_m: float = 1.0
+    """Flying on the estimate alone (mocap stale, or its poses rejected), the motors stop once the horizontal
+    position's standard deviation (per axis) passes this, m, or the height's passes ``max_height_sigma_m``: until
+    then the flight lands blind, level, at ``blind_descent_mps``. Sideways it is the attitude's uncertainty that
+    grows it (g sigma_theta tau^2 / 2: 0.5 m after 3.4 s blind), and stopping there drops the assembly where it is,
+    while a landing that goes on moves it only by its velocity's error: at 0.5 m (the bound before) a blind
+    landing from 1.6 m stopped its motors 0.12 m up, its height's std 0.16 m."""
+    max_height_sigma_m: float = 0.3
+    """...the height's std bound, m (:data:`BLIND_SLOW_M` is above 1.5 times it). Either bound passed once the
+    blind landing's reference is below the ground ends the landing as its clock would."""
     blind_descent_mps: float = 0.5
-    """A landing begun because mocap went stale descends at this rate on average, m/s (from 1 m in 2 s: the
-    estimate's uncertainty grows with the cube of the time flown blind). The landing's smooth profile peaks near
-    twice that; touchdowns measured 0.6-0.8 m/s. At most :data:`MAX_BLIND_DESCENT_MPS`."""
+    """A landing begun because mocap went stale descends at this speed over its last :data:`BLIND_SLOW_M` and
+    through the ground, m/s (faster above: :data:`BLIND_CRUISE_MPS`); touchdowns measured 0.54-0.72 m/s from 1-2 m.
+    At most :data:`MAX_BLIND_DESCENT_MPS`."""
     max_tracking_error_m: float = 0.5
     """Airborne, the measured position farther than this from the reference lands the flight: the assembly is not
     following its commands (held down, too heavy for its modules, an assembly file that is not the one flying).
@@ -338,6 +349,15 @@ TURN_RATE_MAX_GAP_S = 0.05
 BLIND_LANDING_DEPTH = 0.15
 """A blind landing (on the estimate alone) aims this far below the ground, m: the estimate may be several cm off
 after seconds without mocap (measured in the dry run: 5-8 cm high after 2 s), and aiming low lands it anyway."""
+BLIND_CRUISE_MPS = 1.0
+"""A blind landing descends at up to this speed while higher than :data:`BLIND_SLOW_M` above the ground, m/s: the
+estimate's uncertainty grows with the time flown blind (its height's to the 2.5th power), so the time up high is
+what a blind landing can spare. It then slows to ``failsafe.blind_descent_mps`` and touches down at that."""
+BLIND_SLOW_M = 0.5
+"""...m: an estimate 1.5 times the height's std bound (``max_height_sigma_m``) too high still slows before the
+ground."""
+BLIND_ACCEL_MPS2 = 1.5
+"""...changing its descent speed at this, m/s^2 (the thrust 15 % above or below the weight; no tilt)."""
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
@@ -528,7 +548,7 @@ class Flight:
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
     def _begin_landing(self, t: float, state: RigidState, why: str, blind: bool = False) -> None:
-        """Land in the plan's landing time, or, ``blind`` (on the estimate alone), at ``blind_descent_mps``; the
+        """Land in the plan's landing time, or, ``blind`` (on the estimate alone), as :class:`Descent` has it; the
         landing reference goes on from the current one (position, velocity, acceleration: the controller's output
         does not jump) unless the assembly is farther from it than ``max_tracking_error_m``, then from the
         ``state`` (where and how it moves). A landing already under way goes on from its own reference (a blind
@@ -542,18 +562,23 @@ class Flight:
             self._event(t, "warning", f"{why}: the landing goes on" + (" blind" if blind else ""))
         if np.linalg.norm(state.position - ref.position) > self.policy.max_tracking_error_m:
             ref = Setpoint(state.position, state.velocity, np.zeros(3), ref.rotation)
-        z = float(self.plan.ground[2]) - (BLIND_LANDING_DEPTH if blind else LANDING_DEPTH)
-        height, sinking = float(ref.position[2]) - z, -float(ref.velocity[2])
-        duration = max(self.plan.landing_s, height / MAX_LANDING_MPS)  # never faster than the plan's own landing
+        start = tuple(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration))
+        ground = float(self.plan.ground[2])
         if blind:
-            duration = max(0.5, height / self.policy.blind_descent_mps)
-            self.estimator.set_ground(float(self.plan.ground[2]))
-        if sinking > 0.0 and height > 0.0:
-            # Descending fast near the ground: the quintic to rest would pass below it (and come back up) if it
-            # carried that speed over more than 2.5 x the height.
-            duration = min(duration, max(0.3, 2.5 * height / sinking))
-        self._landing = (t, Landing(*(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration)),
-                                    z, duration), blind)
+            self.estimator.set_ground(ground)
+            landing = Landing.blind(*start, Descent(start[0][2], start[1][2], ground, BLIND_CRUISE_MPS,
+                                                    self.policy.blind_descent_mps, BLIND_SLOW_M,
+                                                    BLIND_LANDING_DEPTH, BLIND_ACCEL_MPS2))
+        else:
+            z = ground - LANDING_DEPTH
+            height, sinking = float(ref.position[2]) - z, -float(ref.velocity[2])
+            duration = max(self.plan.landing_s, height / MAX_LANDING_MPS)  # never faster than the plan's landing
+            if sinking > 0.0 and height > 0.0:
+                # Descending fast near the ground: the quintic to rest would pass below it (and come back up) if it
+                # carried that speed over more than 2.5 x the height.
+                duration = min(duration, max(0.3, 2.5 * height / sinking))
+            landing = Landing(*start, z, duration)
+        self._landing = (t, landing, blind)
         self.reason = self.reason or why
         self._set_phase(t, Phase.LANDING, why)
 
@@ -643,10 +668,23 @@ class Flight:
                 return False
             if self._landing is None or not self._landing[2]:  # not yet landing blind (the plan's landing too)
                 self._begin_landing(t, state, why + ": landing blind on the estimate", blind=True)
-            sigma = est.estimate().position_sigma
-            if sigma > self.policy.max_position_sigma_m:
-                self._emergency(t, f"{why}: the position estimate's uncertainty {sigma:.2f} m > "
-                                   f"{self.policy.max_position_sigma_m:g} m")
+            e = est.estimate()
+            for sigma, bound, which in ((e.height_sigma, self.policy.max_height_sigma_m, "height"),
+                                        (e.position_sigma, self.policy.max_position_sigma_m, "position"),
+                                        (e.attitude_sigma, MAX_UNSEEN_ATTITUDE_SIGMA, "attitude")):
+                if sigma <= bound:
+                    continue
+                if which == "attitude":
+                    why = (f"{why}, no gyro either: the attitude estimate's uncertainty {math.degrees(sigma):.0f} "
+                           f"deg > {math.degrees(bound):.0f} deg")
+                else:
+                    why = f"{why}: the {which} estimate's uncertainty {sigma:.2f} m > {bound:g} m"
+                if self._landing_reference(t).position[2] < float(self.plan.ground[2]):
+                    # The descent is done but for its margin below the ground: the end the clock would give.
+                    self._event(t, "warning", f"{why}, the landing's reference below the ground: it ends here")
+                    self._landed_or_not(t, state)
+                else:
+                    self._emergency(t, why)
                 return False
         if not (np.all(np.isfinite(state.position)) and np.all(np.isfinite(state.rotation))):
             self._emergency(t, "non-finite state")
@@ -855,7 +893,8 @@ class Flight:
             est = self.estimator
             e = est.estimate()
             if e is not None:
-                record["estimate"] = {"position_sigma_m": e.position_sigma, "velocity_sigma_mps": e.velocity_sigma,
+                record["estimate"] = {"position_sigma_m": e.position_sigma, "height_sigma_m": e.height_sigma,
+                                      "velocity_sigma_mps": e.velocity_sigma,
                                       "attitude_sigma_deg": np.degrees(e.attitude_sigma),
                                       "gyro_bias_radps": e.gyro_bias, "disturbance_mps2": e.disturbance,
                                       "innovation_position_m": est.innovation_position,

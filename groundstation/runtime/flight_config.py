@@ -241,10 +241,12 @@ class FailsafeSection:
     on_log_failure: Literal["land", "continue"] = FailsafePolicy.on_log_failure
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
     max_position_sigma_m: float = Field(FailsafePolicy.max_position_sigma_m, gt=0, le=MAX_GEOFENCE_M)
-    """Flying blind on the estimate, the motors stop beyond this position std, m."""
+    """Flying blind on the estimate, the motors stop beyond this horizontal position std, m..."""
+    max_height_sigma_m: float = Field(FailsafePolicy.max_height_sigma_m, gt=0, le=MAX_GEOFENCE_M)
+    """...or beyond this height std, m."""
     blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, gt=0, le=MAX_BLIND_DESCENT_MPS)
-    """A landing begun on stale mocap descends at this rate, m/s (at most :data:`MAX_BLIND_DESCENT_MPS`: faster
-    touches down too hard)."""
+    """A landing begun on stale mocap touches down at this speed, m/s (at most :data:`MAX_BLIND_DESCENT_MPS`:
+    faster touches down too hard)."""
     max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
     """Airborne, the measured position farther than this from the reference lands the flight, m (below the
     geofence's diagonal: :func:`bound_issues`)."""

@@ -6,6 +6,7 @@ from groundstation.control.trajectory import (
     MAX_LANDING_MPS,
     Attitude,
     Circle,
+    Descent,
     Figure8,
     FlightPlan,
     Hover,
@@ -18,6 +19,8 @@ from groundstation.control.trajectory import (
 TRAJECTORIES = [
     Ramp((0, 0, 0.05), (0.3, -0.2, 1.0), 3.0),
     Landing((0.1, 0.2, 1.0), (0.5, -0.3, 0.1), (0.4, 0.6, 0.0), -0.02, 2.0),
+    Landing.blind((0.1, 0.2, 1.0), (0.5, -0.3, 0.1), (0.4, 0.6, 0.0),
+                  Descent(1.0, 0.1, -0.02, 1.0, 0.5, 0.5, 0.15, 1.5)),
     Circle((0, 0, 1), 0.5, 8.0, 16.0),
     Figure8(0.6, 8.0, 1.0, 16.0),
     FlightPlan((0, 0, 0.05), Figure8(0.6, 8.0, 1.0, 16.0)),
@@ -96,3 +99,45 @@ def test_a_landing_never_descends_faster_than_its_bound(landing_s):
     assert plan(end).position[2] == pytest.approx(0.03) and plan(start).position[2] == pytest.approx(1.0)
     mean = drop / (end - start)
     assert mean <= MAX_LANDING_MPS + 1e-12 and (mean == pytest.approx(MAX_LANDING_MPS)) == (landing_s < 1.2)
+
+
+BLIND = dict(ground_z=0.05, cruise_mps=1.0, touchdown_mps=0.5, slow_m=0.5, depth_m=0.15, accel_mps2=1.5)
+
+
+@pytest.mark.parametrize("z0, v0", [(1.6, 0.0), (2.5, 0.0), (1.0, -0.3), (1.0, 0.5), (0.6, -0.3), (0.3, 0.0),
+                                    (0.05, 0.0), (1.0, -1.8), (0.25, -1.5)])
+def test_a_blind_descent_cruises_high_and_touches_down_at_its_speed(z0, v0):
+    """Kinematics recomputed here by integrating the profile's own acceleration and velocity (0.1 ms steps): it
+    starts where and as the assembly moves, never exceeds its cruise speed (unless it started faster), changes
+    speed at its bound (harder only to brake from a speed it could not shed at it), passes the ground at the
+    touchdown speed when it has room to reach it, and stops at its depth below the ground."""
+    d = Descent(z0, v0, **BLIND)
+    assert d(0.0)[:2] == pytest.approx((z0, v0))
+    dt = 1e-4
+    ts = np.arange(0.0, d.duration + 0.3, dt)
+    zs, vs, accels = np.array([d(t) for t in ts]).T
+    mid = np.array([d(t + dt / 2)[2] for t in ts[:-1]])
+    np.testing.assert_allclose(vs[1:], v0 + np.cumsum(mid) * dt, atol=1e-3)
+    np.testing.assert_allclose(zs[1:], z0 + np.cumsum(0.5 * (vs[1:] + vs[:-1])) * dt, atol=1e-5)
+    assert zs[-1] == pytest.approx(BLIND["ground_z"] - BLIND["depth_m"]) and vs[-1] == 0.0 and d.end_z == zs[-1]
+    assert -vs.min() <= max(BLIND["cruise_mps"], -v0) + 1e-9
+    room = z0 - BLIND["ground_z"] - (BLIND["touchdown_mps"] ** 2 - max(-v0, 0.0) ** 2) / (2 * BLIND["accel_mps2"])
+    if -v0 <= BLIND["touchdown_mps"] and room > 0:
+        assert np.abs(accels).max() <= BLIND["accel_mps2"] + 1e-12
+        at_ground = np.flatnonzero(zs <= BLIND["ground_z"])[0]
+        assert vs[at_ground] == pytest.approx(-BLIND["touchdown_mps"], abs=2e-3)
+
+
+def test_a_blind_descent_from_high_up_is_quicker_than_the_mean_speed_it_touches_down_at():
+    """From 1.6 m: under 2.95 s, where descending at 0.5 m/s on average (the quintic of the landings before) took
+    3.4 s, and the height's uncertainty grows with the time flown blind to the 2.5th power."""
+    d = Descent(1.6, 0.0, **BLIND)
+    # 0 -> 1 m/s at 1.5 m/s^2 (0.667 s, 0.333 m), 1 -> 0.5 (0.333 s, 0.25 m), 1 m/s to 0.5 m above the ground (0.467
+    # m), 0.5 m/s for 0.65 m less the stop's 0.083 m, the stop (0.333 s)
+    expected = 2 / 3 + 1 / 3 + (1.6 - 0.55 - 0.25 - 1 / 3) / 1.0 + (0.65 - 1 / 12) / 0.5 + 1 / 3
+    drop = 1.6 - (BLIND["ground_z"] - BLIND["depth_m"])
+    assert d.duration == pytest.approx(expected) and expected < 2.95 and drop / 0.5 == pytest.approx(3.4)
+    landing = Landing.blind((0.1, 0.2, 1.6), (0.3, 0.0, 0.0), (0.0, 0.0, 0.0), d)
+    assert landing.duration == d.duration and landing.end[2] == d.end_z
+    for t in (0.0, 0.4, 1.7, 2.9, 3.5):
+        assert landing(t).position[2] == d(t)[0] and landing(t).velocity[2] == d(t)[1]

@@ -128,6 +128,30 @@ def f_mocap_blackout_1s(cli, tmp_path):
     assert after and max(after) < 0.01  # the poses are back: the uncertainty is mocap's again
 
 
+@estimate_fault("mocap: no pose from 2 m up, for good, in tracking (dry run)",
+                "a blind landing at up to 1 m/s down to 0.5 m, then at 0.5 m/s through the ground: on it, upright, "
+                "touching down under 1 m/s, 'landed', exit 1 (at 0.5 m/s throughout the uncertainty passed its "
+                "bound and the motors stopped 0.5 m up)")
+def f_mocap_lost_2m_up(cli, tmp_path):
+    faults = Faults()
+    log = tmp_path / "high.mcap"
+    takeoff_s = 2.0  # to 2 m in the test flights' 1 s asks for more thrust than the V has
+    changes = {"height = 1.0": "height = 2.0", "duration = 16.0\n": f"duration = 16.0\ntakeoff_s = {takeoff_s}\n"}
+    lost_at = takeoff_s + SETTLE_S + 1.0
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536", **changes), duration=3.0, log_path=log,
+              faults=faults, on_period=lambda t: setattr(faults, "mocap_paused", t >= lost_at))
+    assert res.phase == "done" and "landing blind" in res.reason, res.reason
+    truth = _truth(log)
+    ground = truth[0][2]
+    assert max(z for t, _, z, _ in truth if t < lost_at) > ground + 1.9  # lost 2 m up
+    _touched_down_upright(log)
+    t_s = np.array([t for t, *_ in truth])
+    z = np.array([z for _, _, z, _ in truth])
+    down = int(np.flatnonzero((t_s > lost_at) & (z < ground + 0.01))[0])
+    before = int(np.flatnonzero(t_s <= t_s[down] - 0.05)[-1])
+    assert (z[before] - z[down]) / (t_s[down] - t_s[before]) < 1.0  # touchdown speed, the physics' own
+
+
 def _bridge_restarted(tmp_path, port: int, keyed: bool):
     """A dry run whose mocap publisher stops in tracking and a new one (a new entity id, its sequence from 1) takes
     its place 1 s later, as a restarted bridge; (result, log, the last /mocap/stats)."""
