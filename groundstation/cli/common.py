@@ -111,7 +111,8 @@ LABELS = {
     "mocap_rate_hz": "mocap rate, poses arrived (Hz)", "mocap_age_p99_ms": "mocap age p99 (ms)",
     "mocap_rejected": "mocap rejected", "mocap_malformed": "mocap malformed",
     "estimator_rejected": "poses the estimator rejected", "estimator_late": "poses too late for the estimator",
-    "position_sigma_max_m": "position std max (m)", "innovation_position_p95_mm": "innovation p95 (mm)",
+    "position_sigma_max_m": "horizontal std max (m)", "height_sigma_max_m": "height std max (m)",
+    "innovation_position_p95_mm": "innovation p95 (mm)",
     "innovation_attitude_p95_deg": "innovation p95 (deg)", "battery_v_min": "battery min (V)",
     "link_latency_ms_max": "link round trip max (ms)", "link_loss_max": "link loss max",
     "periods": "control periods", "realtime_factor": "flight time per wall-clock time"}

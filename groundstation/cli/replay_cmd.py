@@ -18,7 +18,8 @@ ROWS = ("phase", "reason", "duration_s", "tracked_s", "pos_rmse_m", "max_pos_err
         "orientation_error_p95_deg", "max_roll_error_deg", "max_yaw_error_deg", "max_motor_fraction",
         "saturation_fraction", "motor_change_rms", "loop_period_error_p99_ms", "overruns", "stalls", "mocap_rate_hz",
         "mocap_age_p99_ms", "mocap_rejected", "mocap_malformed", "estimator_rejected", "estimator_late",
-        "position_sigma_max_m", "innovation_position_p95_mm", "innovation_attitude_p95_deg", "battery_v_min",
+        "position_sigma_max_m", "height_sigma_max_m", "innovation_position_p95_mm", "innovation_attitude_p95_deg",
+        "battery_v_min",
         "link_latency_ms_max", "link_loss_max")
 """The figures of the table, in its order (labelled by :data:`~groundstation.cli.common.LABELS`)."""
 

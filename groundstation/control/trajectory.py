@@ -136,11 +136,12 @@ def _to_rest(p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, dur
 def _pieces(w: float, dist: float, cruise: float, end: float, accel: float) -> list[tuple[float, float]] | None:
     """Constant-acceleration pieces (duration s, acceleration m/s^2, along the motion) from speed ``w`` to speed
     ``end`` over ``dist``, m, cruising at up to ``cruise`` between, changing speed at ``accel`` (or, to make
-    ``end`` where it cannot at ``accel``, braking harder); None if there is no way down (``dist`` <= 0)."""
+    ``end`` where it cannot at ``accel``, braking harder, at most twice that: it then ends past ``dist``); None if
+    there is no way down (``dist`` <= 0)."""
     if dist <= 0.0:
         return None
     if w > end and (w * w - end * end) / (2.0 * accel) > dist:  # too fast to slow down at accel: brake harder
-        a = (w * w - end * end) / (2.0 * dist)
+        a = min((w * w - end * end) / (2.0 * dist), 2.0 * accel)
         return [((w - end) / a, -a)]
     # The peak speed c of speeding up then slowing down over exactly dist: (c^2 - w^2 + c^2 - end^2) / 2a = dist
     # (signed speeds: w < 0 climbs).
@@ -174,35 +175,42 @@ class Descent:
     accel_mps2: float
 
     @cached_property
-    def _pieces(self) -> tuple[tuple[float, float, float, float], ...]:
+    def _segments(self) -> tuple[tuple[float, float, float, float], ...]:
         """(start s, start height m, start velocity m/s, acceleration m/s^2), world up."""
         u, a, slow = -self.v0, self.accel_mps2, self.touchdown_mps  # downwards
         to_slow = self.z0 - (self.ground_z + self.slow_m)
-        # Faster down to slow_m if there is room to reach the touchdown speed by then: else at that speed at most.
-        fast = _pieces(u, to_slow, self.cruise_mps, slow, a) \
-            if u > slow or to_slow > (slow * slow - u * u) / (2.0 * a) else None
-        last = _pieces(slow, self.slow_m + self.depth_m, slow, 0.0, a) if fast else \
-            _pieces(u, self.z0 - (self.ground_z - self.depth_m), slow, 0.0, a)
-        pieces, t, z, v = [], 0.0, self.z0, self.v0
-        for d, acc in (fast or []) + (last or []):
-            pieces.append((t, z, v, -acc))
+        to_end = self.z0 - (self.ground_z - self.depth_m)
+        # Faster down to slow_m if there is room to reach the touchdown speed by then at accel; else at that speed
+        # at most all the way (braking harder only where the whole way forces it: from just above slow_m at 1 m/s,
+        # braking to the touchdown speed by slow_m asked 100-400 m/s^2).
+        fast = _pieces(u, to_slow, self.cruise_mps, slow, a) if to_slow > abs(slow * slow - u * u) / (2.0 * a) \
+            else None
+        if fast:
+            last = _pieces(slow, self.slow_m + self.depth_m, slow, 0.0, a)
+        else:  # below its end already (no way down): it stops where it is
+            last = _pieces(u, to_end, slow, 0.0, a) or [(abs(u) / a, math.copysign(a, -u))]
+        segments, t, z, v = [], 0.0, self.z0, self.v0
+        for d, acc in (fast or []) + last:
+            if d <= 1e-9:
+                continue
+            segments.append((t, z, v, -acc))
             z, v, t = z + v * d - 0.5 * acc * d * d, v - acc * d, t + d
-        pieces.append((t, z, 0.0, 0.0))
-        return tuple(pieces)
+        segments.append((t, z, 0.0, 0.0))
+        return tuple(segments)
 
     @property
     def duration(self) -> float:
         """Until it stops below the ground, s."""
-        return self._pieces[-1][0]
+        return self._segments[-1][0]
 
     @property
     def end_z(self) -> float:
         """Where it stops, world, m."""
-        return self._pieces[-1][1]
+        return self._segments[-1][1]
 
     def __call__(self, t: float) -> tuple[float, float, float]:
         """Height (m), vertical velocity (m/s) and acceleration (m/s^2) at ``t`` s, world up."""
-        t0, z, v, a = next(p for p in reversed(self._pieces) if p[0] <= t) if t > 0.0 else self._pieces[0]
+        t0, z, v, a = next(p for p in reversed(self._segments) if p[0] <= t) if t > 0.0 else self._segments[0]
         dt = max(0.0, t - t0)
         return z + v * dt + 0.5 * a * dt * dt, v + a * dt, a
 

@@ -121,8 +121,9 @@ class EstimatorSettings:
     unseen_rate: float = 0.5
     """How fast the body may turn, unseen, while the gyros are stale (std per axis), rad/s: a flying assembly's
     rates, not a tumble's. It opens the attitude gate to the next poses (after 100 ms: 6 sigma = 12 deg) and, with
-    the mocap gone too, feeds the blind landing's position uncertainty (at 2 rad/s that passed its 0.5 m bound
-    0.39 s after a peer died, ahead of the link timeout that names the lost modules)."""
+    the mocap gone too, is the attitude's uncertainty the flight bounds (15 deg: 0.5 s) and feeds the blind
+    landing's position uncertainty (at 2 rad/s that passed the 0.5 m bound of the time 0.39 s after a peer died,
+    ahead of the link timeout that names the lost modules)."""
     lost_rate_walk: float = 3.0
     """With no gyro usable (:meth:`RigidBodyFilter.predict` given NaN), the bias state becomes the body rate the
     poses show (the gyro read as zero, the rate is minus the "bias"): its random walk is then the body's angular

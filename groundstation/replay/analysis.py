@@ -223,7 +223,9 @@ class ReplayFigures(FlightFigures):
     """Poses that reached the estimator too late to use (captured before the history it keeps), counted as
     ``mocap_rejected`` is (0 for logs before it counted them)."""
     position_sigma_max_m: float
-    """Largest position std the estimator reported (blind flight shows here), m (NaN: not logged)."""
+    """Largest horizontal position std the estimator reported (blind flight shows here), m (NaN: not logged)."""
+    height_sigma_max_m: float
+    """...and height std, m (NaN: not logged, as in logs before 2026-12-03)."""
     innovation_position_p95_mm: float
     """95th percentile of the newest pose's position innovation, over the periods, mm (NaN: not logged)."""
     innovation_attitude_p95_deg: float
@@ -290,6 +292,7 @@ class _Estimates:
 
     counts: _Counts = field(default_factory=_Counts)
     sigma_max: float = -math.inf
+    height_sigma_max: float = -math.inf
     position: Decimated = field(default_factory=Decimated)
     attitude: Decimated = field(default_factory=Decimated)
 
@@ -297,6 +300,7 @@ class _Estimates:
         self.counts.add({"rejected": e["rejected"], "late": e.get("late", 0)}, inside)
         if inside:
             self.sigma_max = max(self.sigma_max, e["position_sigma_m"])
+            self.height_sigma_max = max(self.height_sigma_max, e.get("height_sigma_m", -math.inf))
             self.position.add(math.hypot(*e["innovation_position_m"]) * 1e3)
             self.attitude.add(math.hypot(*e["innovation_attitude_deg"]))
 
@@ -305,6 +309,7 @@ class _Estimates:
         counts = self.counts.result(windowed) or {}
         return {"estimator_rejected": counts.get("rejected", 0), "estimator_late": counts.get("late", 0),
                 "position_sigma_max_m": self.sigma_max if self.sigma_max > -math.inf else math.nan,
+                "height_sigma_max_m": self.height_sigma_max if self.height_sigma_max > -math.inf else math.nan,
                 "innovation_position_p95_mm": p95(self.position), "innovation_attitude_p95_deg": p95(self.attitude)}
 
 

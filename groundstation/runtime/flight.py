@@ -9,12 +9,14 @@ States and transitions (each logged as an event)::
                                through: the faulty ones isolated; a module's gyro disagreeing with the
                                others')--> landing
          any state --(operator stop, NaN/inf, geofence, tilt, link loss, mocap stale or link degraded with
-                      "stop", a module fault the others cannot fly through, the position estimate's
-                      uncertainty beyond its bound)--> emergency
+                      "stop", a module fault the others cannot fly through, flying blind: the estimate's
+                      uncertainty (position, height, an attitude nothing observes) beyond its bound)--> emergency
+                      (done if the blind landing's reference is below the ground by then)
 
 The state comes from the estimator (:mod:`groundstation.estimation`): mocap fused with the modules' gyros and the
 commanded wrench, at the period's time. Through a mocap outage it flies on the estimate (a blind landing) while
-the position's and the height's uncertainties stay within ``max_position_sigma_m`` and ``max_height_sigma_m``.
+the position's and the height's uncertainties stay within ``max_position_sigma_m`` and ``max_height_sigma_m`` (and
+the attitude's within :data:`MAX_UNSEEN_ATTITUDE_SIGMA`).
 
 ``landing`` descends from where the reference is to below the ground and ends in ``done``: motors off and the
 modules disarmed (they can fly again). ``emergency`` sends the backend's emergency stop in the same period it is
@@ -67,9 +69,10 @@ from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 
 MAX_BLIND_DESCENT_MPS = 0.6
 """The fastest touchdown a blind landing may plan (``failsafe.blind_descent_mps``; planned landings:
-:data:`~groundstation.control.trajectory.MAX_LANDING_MPS`), m/s: flown on the estimate alone, it trails more.
-Measured from 1 m, with a quintic descent of this mean speed: at 0.5 m/s touchdowns at 0.6-0.8 m/s, at 1 m/s
-1.58 m/s; at 2-5 m/s the rotors went to zero and it tipped 46-48 deg."""
+:data:`~groundstation.control.trajectory.MAX_LANDING_MPS`), m/s. Its estimate may be ``max_height_sigma_m`` (0.3
+m) and more off: one that high still slows from :data:`BLIND_CRUISE_MPS` before the ground only with this much
+margin. Measured from 1 m in the dry run: 0.54 m/s at 0.5, 0.59 at 0.6 (a quintic descent at 1 m/s on average,
+as blind landings flew before: 1.58 m/s)."""
 GYROS_DISPUTED_RAD = math.radians(1.0)
 """A pose's attitude this far from the estimate's (fused or rejected for it) is the poses and the gyros disagreeing
 enough to ask the torque commanded which is wrong (:class:`TorqueAgreement`), rad: three times the largest of a
@@ -197,8 +200,8 @@ class FailsafePolicy:
     while a landing that goes on moves it only by its velocity's error: at 0.5 m (the bound before) a blind
     landing from 1.6 m stopped its motors 0.12 m up, its height's std 0.16 m."""
     max_height_sigma_m: float = 0.3
-    """...the height's std bound, m (:data:`BLIND_SLOW_M` is above 1.5 times it). Either bound passed once the
-    blind landing's reference is below the ground ends the landing as its clock would."""
+    """...the height's std bound, m (at most :data:`MAX_HEIGHT_SIGMA_M`). Either bound passed once the blind
+    landing's reference is below the ground ends the landing as its clock would."""
     blind_descent_mps: float = 0.5
     """A landing begun because mocap went stale descends at this speed over its last :data:`BLIND_SLOW_M` and
     through the ground, m/s (faster above: :data:`BLIND_CRUISE_MPS`); touchdowns measured 0.54-0.72 m/s from 1-2 m.
@@ -354,10 +357,12 @@ BLIND_CRUISE_MPS = 1.0
 estimate's uncertainty grows with the time flown blind (its height's to the 2.5th power), so the time up high is
 what a blind landing can spare. It then slows to ``failsafe.blind_descent_mps`` and touches down at that."""
 BLIND_SLOW_M = 0.5
-"""...m: an estimate 1.5 times the height's std bound (``max_height_sigma_m``) too high still slows before the
-ground."""
+"""...m (see :data:`MAX_HEIGHT_SIGMA_M`)."""
 BLIND_ACCEL_MPS2 = 1.5
 """...changing its descent speed at this, m/s^2 (the thrust 15 % above or below the weight; no tilt)."""
+MAX_HEIGHT_SIGMA_M = BLIND_SLOW_M / 1.5
+"""The largest ``failsafe.max_height_sigma_m``, m: a blind estimate 1.5 of its std too high still slows before the
+ground; beyond, it may meet the ground at :data:`BLIND_CRUISE_MPS`."""
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
@@ -550,9 +555,9 @@ class Flight:
     def _begin_landing(self, t: float, state: RigidState, why: str, blind: bool = False) -> None:
         """Land in the plan's landing time, or, ``blind`` (on the estimate alone), as :class:`Descent` has it; the
         landing reference goes on from the current one (position, velocity, acceleration: the controller's output
-        does not jump) unless the assembly is farther from it than ``max_tracking_error_m``, then from the
-        ``state`` (where and how it moves). A landing already under way goes on from its own reference (a blind
-        one stays blind)."""
+        does not jump; a blind landing's vertical acceleration steps, which changes the collective thrust alone)
+        unless the assembly is farther from it than ``max_tracking_error_m``, then from the ``state`` (where and
+        how it moves). A landing already under way goes on from its own reference (a blind one stays blind)."""
         if self._landing is not None:
             t_land, landing, was_blind = self._landing
             ref, blind = landing(t - t_land), blind or was_blind
@@ -658,6 +663,9 @@ class Flight:
                 (self.phase.airborne or self.phase == Phase.LANDING):
             self._gyro_fault_named = True  # a landing under way (the plan's too) goes on, the fault named once
             self._begin_landing(t, state, f"gyro fault: {self.gyros.fault}")
+        if state is not None and not (np.all(np.isfinite(state.position)) and np.all(np.isfinite(state.rotation))):
+            self._emergency(t, "non-finite state")
+            return False
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
             integrity = self.integrity()
@@ -675,8 +683,8 @@ class Flight:
                 if sigma <= bound:
                     continue
                 if which == "attitude":
-                    why = (f"{why}, no gyro either: the attitude estimate's uncertainty {math.degrees(sigma):.0f} "
-                           f"deg > {math.degrees(bound):.0f} deg")
+                    why = (f"{why}, nothing observes the attitude: its uncertainty {math.degrees(sigma):.0f} deg > "
+                           f"{math.degrees(bound):.0f} deg")
                 else:
                     why = f"{why}: the {which} estimate's uncertainty {sigma:.2f} m > {bound:g} m"
                 if self._landing_reference(t).position[2] < float(self.plan.ground[2]):
@@ -686,9 +694,6 @@ class Flight:
                 else:
                     self._emergency(t, why)
                 return False
-        if not (np.all(np.isfinite(state.position)) and np.all(np.isfinite(state.rotation))):
-            self._emergency(t, "non-finite state")
-            return False
         if np.any(state.position < self._lo) or np.any(state.position > self._hi):
             self._emergency(t, f"left the geofence at {np.round(state.position, 2).tolist()}")
             return False
@@ -831,18 +836,21 @@ class Flight:
         and the log says where it was (a landing on the poses of another body ended 1 m up by the estimate, and
         was reported as landed)."""
         height = float(state.position[2] - self.plan.ground[2])
-        if height > LANDED_HEIGHT_M:
+        if not height <= LANDED_HEIGHT_M:
             self._emergency(t, f"the landing's time ran out {height:.2f} m above the ground (by the estimate): "
                                f"motors off")
+        elif self._landing is not None and self._landing[2]:
+            # On the estimate alone: where the ground is is known to its height's std, not to a pose's mm.
+            self._finish(t, f"landed blind (the height's std {self.estimator.estimate().height_sigma:.2f} m)")
         else:
             self._finish(t)
 
-    def _finish(self, t: float) -> None:
+    def _finish(self, t: float, how: str = "landed") -> None:
         self.backend.disarm()  # landed: motors off, disarmed (an emergency stop would need a reboot)
         self.estimator.command(None)
         self.torque.command(None)
         self._last_u = np.zeros_like(self._last_u)
-        self._set_phase(t, Phase.DONE, "landed")
+        self._set_phase(t, Phase.DONE, how)
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
     def _record(self, t, state, sp, out, u, age, telemetry) -> None:

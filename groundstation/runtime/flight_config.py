@@ -28,7 +28,7 @@ from groundstation.backends.section import BackendSection, SimSection
 from groundstation.control.geometric import Gains
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.estimation.filter import EstimatorSettings
-from groundstation.runtime.flight import MAX_BLIND_DESCENT_MPS, FailsafePolicy, QualityBounds
+from groundstation.runtime.flight import MAX_BLIND_DESCENT_MPS, MAX_HEIGHT_SIGMA_M, FailsafePolicy, QualityBounds
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_DURATION_S = 3600.0
@@ -242,8 +242,8 @@ class FailsafeSection:
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
     max_position_sigma_m: float = Field(FailsafePolicy.max_position_sigma_m, gt=0, le=MAX_GEOFENCE_M)
     """Flying blind on the estimate, the motors stop beyond this horizontal position std, m..."""
-    max_height_sigma_m: float = Field(FailsafePolicy.max_height_sigma_m, gt=0, le=MAX_GEOFENCE_M)
-    """...or beyond this height std, m."""
+    max_height_sigma_m: float = Field(FailsafePolicy.max_height_sigma_m, gt=0, le=MAX_HEIGHT_SIGMA_M)
+    """...or beyond this height std, m (at most :data:`MAX_HEIGHT_SIGMA_M`)."""
     blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, gt=0, le=MAX_BLIND_DESCENT_MPS)
     """A landing begun on stale mocap touches down at this speed, m/s (at most :data:`MAX_BLIND_DESCENT_MPS`:
     faster touches down too hard)."""

@@ -105,12 +105,13 @@ BLIND = dict(ground_z=0.05, cruise_mps=1.0, touchdown_mps=0.5, slow_m=0.5, depth
 
 
 @pytest.mark.parametrize("z0, v0", [(1.6, 0.0), (2.5, 0.0), (1.0, -0.3), (1.0, 0.5), (0.6, -0.3), (0.3, 0.0),
-                                    (0.05, 0.0), (1.0, -1.8), (0.25, -1.5)])
+                                    (0.05, 0.0), (1.0, -1.8), (0.551, -0.9), (0.6, -1.0), (0.25, -1.5), (-0.2, -0.5)])
 def test_a_blind_descent_cruises_high_and_touches_down_at_its_speed(z0, v0):
     """Kinematics recomputed here by integrating the profile's own acceleration and velocity (0.1 ms steps): it
     starts where and as the assembly moves, never exceeds its cruise speed (unless it started faster), changes
-    speed at its bound (harder only to brake from a speed it could not shed at it), passes the ground at the
-    touchdown speed when it has room to reach it, and stops at its depth below the ground."""
+    speed at its bound (at most twice that, only to stop from a speed it could not shed at it by its end: a start
+    just above the slow height at 1 m/s asked 100-400 m/s^2 before), passes the ground at the touchdown speed when
+    it has room to reach it, and stops at its depth below the ground (lower only where it brakes harder still)."""
     d = Descent(z0, v0, **BLIND)
     assert d(0.0)[:2] == pytest.approx((z0, v0))
     dt = 1e-4
@@ -119,11 +120,16 @@ def test_a_blind_descent_cruises_high_and_touches_down_at_its_speed(z0, v0):
     mid = np.array([d(t + dt / 2)[2] for t in ts[:-1]])
     np.testing.assert_allclose(vs[1:], v0 + np.cumsum(mid) * dt, atol=1e-3)
     np.testing.assert_allclose(zs[1:], z0 + np.cumsum(0.5 * (vs[1:] + vs[:-1])) * dt, atol=1e-5)
-    assert zs[-1] == pytest.approx(BLIND["ground_z"] - BLIND["depth_m"]) and vs[-1] == 0.0 and d.end_z == zs[-1]
+    end = BLIND["ground_z"] - BLIND["depth_m"]
+    accel, room = BLIND["accel_mps2"], z0 - end
+    forced = v0 * v0 / (2 * room) if v0 < 0 and room > 0 else 0.0  # braking to a stop at the end
+    assert vs[-1] == 0.0 and accels[-1] == 0.0 and d.end_z == zs[-1]
+    stopped = end if room > 0 else z0 + v0 * abs(v0) / (2 * accel)  # below its end already: it stops at accel
+    assert zs[-1] == pytest.approx(stopped) if forced <= 2 * accel else zs[-1] < end
     assert -vs.min() <= max(BLIND["cruise_mps"], -v0) + 1e-9
-    room = z0 - BLIND["ground_z"] - (BLIND["touchdown_mps"] ** 2 - max(-v0, 0.0) ** 2) / (2 * BLIND["accel_mps2"])
-    if -v0 <= BLIND["touchdown_mps"] and room > 0:
-        assert np.abs(accels).max() <= BLIND["accel_mps2"] + 1e-12
+    assert np.abs(accels).max() <= (accel if forced <= accel else 2 * accel) + 1e-12
+    room_to_touchdown = z0 - BLIND["ground_z"] - (BLIND["touchdown_mps"] ** 2 - v0 ** 2) / (2 * accel)
+    if -v0 <= BLIND["touchdown_mps"] and room_to_touchdown > 0:
         at_ground = np.flatnonzero(zs <= BLIND["ground_z"])[0]
         assert vs[at_ground] == pytest.approx(-BLIND["touchdown_mps"], abs=2e-3)
 

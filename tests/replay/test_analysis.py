@@ -61,6 +61,7 @@ def test_the_estimators_figures_recomputed_from_the_records(sim_flight):
     assert r.metrics.estimator_rejected == est[-1]["rejected"]
     assert r.metrics.estimator_late == est[-1]["late"]
     assert r.metrics.position_sigma_max_m == max(e["position_sigma_m"] for e in est) < 0.01  # mocap throughout
+    assert r.metrics.height_sigma_max_m == max(e["height_sigma_m"] for e in est) <= r.metrics.position_sigma_max_m
     p95 = np.percentile([np.linalg.norm(e["innovation_position_m"]) * 1e3 for e in est], 95)
     assert r.metrics.innovation_position_p95_mm == pytest.approx(p95) and 0.1 < p95 < 5.0  # 0.5 mm noise
     p95 = np.percentile([np.linalg.norm(e["innovation_attitude_deg"]) for e in est], 95)
