@@ -8,9 +8,28 @@ import sys
 from contextlib import contextmanager
 
 
+def _fd_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
+
+
 @contextmanager
 def quiet_stderr():
-    sys.stderr.flush()
+    """C-level stderr goes to /dev/null within the block. With no stderr at all (``2>&-``: Python's
+    ``sys.stderr`` is None, file descriptor 2 closed) /dev/null is put on descriptor 2 for good: a file opened
+    later (a flight's log) would otherwise be given descriptor 2, and a C library's messages written into it."""
+    if sys.stderr is not None:
+        sys.stderr.flush()
+    if not _fd_open(2):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        if devnull != 2:
+            os.dup2(devnull, 2)
+            os.close(devnull)
+        yield
+        return
     try:
         fd = sys.stderr.fileno()
     except (AttributeError, OSError, ValueError):  # no real stderr (e.g. captured by a test runner)

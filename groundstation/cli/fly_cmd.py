@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import signal
@@ -160,6 +161,8 @@ def _report(flight: str, result, as_json: bool) -> int:
     # and a script reading only the JSON must see why.
     summary = {"phase": result.phase, "reason": result.reason, "degraded": list(result.degraded),
                "log": str(result.log_path), "log_error": result.log_error, **asdict(result.metrics)}
+    if sys.stdout is None:  # closed (>&-): click and rich would drop the summary without a word
+        raise OSError(errno.EBADF, "stdout is closed")
     if as_json:
         click.echo(json.dumps(json_safe(summary)))
     else:

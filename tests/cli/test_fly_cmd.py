@@ -50,3 +50,55 @@ def test_status_line_fits_the_terminal():
     assert " --- Hz " in Text.from_markup(status_text(Status(0.5, "takeoff", 0.004, 0.4, None, 0), 80)).plain
     # a very narrow terminal: cut, never wrapped
     assert len(Text.from_markup(status_text(s, 40, KEYS_HINT)).plain) == 40
+
+
+def _closed(*fds: int):
+    """A child's preexec: the standard streams ``fds`` closed (``>&-``, ``2>&-``)."""
+    import os
+
+    def close():
+        for fd in fds:
+            os.close(fd)
+    return close
+
+
+def _run_closed(args: list[str], fds: tuple[int, ...], tmp_path: Path, timeout: float = 300):
+    """``groundstation ARGS`` with ``fds`` closed; what it wrote on the others (files), and its exit status."""
+    import subprocess
+    import sys
+
+    out, err = tmp_path / "out", tmp_path / "err"
+    with out.open("w") as o, err.open("w") as e:
+        proc = subprocess.run([sys.executable, "-m", "groundstation", *args], stdin=subprocess.DEVNULL, stdout=o,
+                              stderr=e, cwd=ROOT, timeout=timeout, preexec_fn=_closed(*fds))
+    return proc.returncode, out.read_text(), err.read_text()
+
+
+def test_fly_with_stdout_closed_says_so_on_stderr(tmp_path):
+    """``fly >&-``: the flight flies; one line on stderr says its summary could not be printed and where the log is
+    (before: exit 0 and the summary lost without a word); the exit status is the flight's."""
+    from tests.runtime.test_fly import config_with
+
+    log = tmp_path / "f.mcap"
+    code, _, err = _run_closed(["fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7791")), "--log", str(log),
+                                "--json", "--duration", "1"], (1,), tmp_path)
+    assert code == 0 and "Traceback" not in err, err
+    assert f"groundstation: cannot print the flight's summary (stdout is closed); it is in the log {log}\n" in err
+
+
+def test_fly_simulate_and_sim_peer_run_with_stderr_closed(tmp_path):
+    """``2>&-`` (Python's sys.stderr is None): they ran into an AttributeError silencing pybullet's banner
+    (sim/quiet.py) and exited 1 with nothing said and no log."""
+    from tests.runtime.test_fly import config_with
+
+    log = tmp_path / "f.mcap"
+    code, out, _ = _run_closed(["fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7792")), "--log", str(log),
+                                "--json", "--duration", "1"], (2,), tmp_path)
+    assert code == 0 and json.loads(out)["phase"] == "done" and log.stat().st_size > 0, out
+    code, out, _ = _run_closed(["simulate", ASSEMBLY, "--duration", "0.5", "--trajectory", "hover"], (2,), tmp_path)
+    assert code == 0 and "Simulated hover" in out, out
+    code, out, _ = _run_closed(["sim-peer", ASSEMBLY, "--port", "19894", "--mocap", "tcp/127.0.0.1:7793",
+                                "--duration", "0.5"], (2,), tmp_path)
+    assert code == 0 and json.loads(out)["simulated_s"] > 0.4, out
+    code, out, _ = _run_closed(["simulate", ASSEMBLY, "--duration", "0.5", "--trajectory", "hover"], (1, 2), tmp_path)
+    assert code == 0 and out == ""
