@@ -20,7 +20,7 @@ from groundstation.control.allocation import allocate_bounded
 from groundstation.control.geometric import Gains, adapt_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
-from groundstation.control.trajectory import FlightPlan
+from groundstation.control.trajectory import FlightPlan, euler_zyx
 from groundstation.errors import PreflightError
 from groundstation.estimation.filter import EstimatorSettings, RigidBodyFilter
 from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
@@ -59,17 +59,42 @@ class FlightRecord:
     metrics: FlightSummary
 
 
-def hover_check(model: ControlModel, plan: FlightPlan) -> None:
-    """Raise :class:`PreflightError` unless the assembly can produce its hover wrench within motor bounds."""
+def hover_problem(model: ControlModel, attitude: np.ndarray) -> str | None:
+    """Why the assembly cannot produce its hover wrench within motor bounds held at ``attitude`` (the rotation
+    matrix of a roll target: the controller's :func:`adapt_attitude` of it), or None if it can."""
     weight = model.mass * GRAVITY * np.array([0.0, 0.0, 1.0])
-    rd = adapt_attitude(plan.track.attitude.matrix, weight, model)
+    rd = adapt_attitude(attitude, weight, model)
     wrench = np.concatenate([rd.T @ weight, np.zeros(3)])
     u = allocate_bounded(wrench, model)
     err = np.abs(model.allocation @ u - wrench)
     if err[:3].max() > 1e-3 * np.linalg.norm(weight) or err[3:].max() > 1e-3 * np.linalg.norm(weight) * 0.1:
-        raise PreflightError(f"the assembly cannot hover: best hover wrench misses by {err.max():.3g} "
-                             f"(max thrust {model.allocation[2].sum() * model.u_max:.2f} N, weight "
-                             f"{np.linalg.norm(weight):.2f} N)")
+        return (f"the assembly cannot hover: best hover wrench misses by {err.max():.3g} (max thrust "
+                f"{model.allocation[2].sum() * model.u_max:.2f} N, weight {np.linalg.norm(weight):.2f} N)")
+    return None
+
+
+def hover_check(model: ControlModel, plan: FlightPlan) -> None:
+    """Raise :class:`PreflightError` unless the assembly can produce its hover wrench within motor bounds."""
+    problem = hover_problem(model, plan.track.attitude.matrix)
+    if problem is not None:
+        raise PreflightError(problem)
+
+
+def hover_roll_limit(model: ControlModel, sign: float, tolerance_deg: float = 0.1) -> float:
+    """The largest roll target, deg, of sign ``sign``, at which the assembly hovers (0 if it does not level):
+    bisection, from level, to within ``tolerance_deg`` (the toy V: +-9.3 deg)."""
+    def hovers(deg: float) -> bool:
+        return hover_problem(model, euler_zyx(np.radians(sign * deg), 0.0, 0.0)) is None
+
+    if not hovers(0.0):
+        return 0.0
+    lo, hi = 0.0, 90.0
+    if hovers(hi):
+        return hi
+    while hi - lo > tolerance_deg:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if hovers(mid) else (lo, mid)
+    return lo
 
 
 THRUST_SHARE = 0.8

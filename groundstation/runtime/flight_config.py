@@ -187,7 +187,8 @@ class TrajectorySection:
     duration: float = Field(16.0, gt=0, le=MAX_DURATION_S)
     """Tracking time, s (at most an hour: no battery lasts longer)."""
     roll_deg: float = 0.0
-    """Roll target while tracking, deg (below ``failsafe.max_tilt_deg``: :func:`bound_issues`)."""
+    """Roll target while tracking, deg (one the assembly hovers at, and with the controller's lean below
+    ``failsafe.max_tilt_deg``: :func:`bound_issues`)."""
     takeoff_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
     """Take-off time, s (at most an hour)."""
     settle_s: float = Field(1.5, ge=0, le=MAX_DURATION_S)
@@ -214,6 +215,38 @@ class GainsSection:
 
 
 _FenceM = Annotated[float, Field(ge=-MAX_GEOFENCE_M, le=MAX_GEOFENCE_M)]
+MIN_TILT_DEG = 20.0
+"""Least ``failsafe.max_tilt_deg``, deg: nominal flights tilt up to 13 deg (the test flights' 1 s figure-8: 12.9 deg;
+the shipped 8 s one 4.7 deg, 6.9 at a roll target of -5 deg; a take-off 0.5 deg), and a floor off level and the
+attitude noise add a few more. At 1e-12 deg the flight armed and stopped at once (an emergency stop latches real
+Crazyflie modules until rebooted). It must also exceed the controller's lean with the roll target
+(:func:`bound_issues`)."""
+MAX_TILT_DEG = 90.0
+"""Largest ``failsafe.max_tilt_deg``, deg: beyond 90 deg the rotors push the assembly toward the ground; a tilt
+failsafe that waits longer (180: never) acts after the crash."""
+MIN_TRACKING_ERROR_M = 0.2
+"""Least ``failsafe.max_tracking_error_m``, m: three times the largest of a nominal dry run (6.6 cm in a 1 s landing,
+3.8 cm in a 1 s take-off); at 1e-12 m the flight landed as it took off."""
+MIN_LINK_LOSS = 0.05
+"""Least ``failsafe.max_link_loss``: one lost command in the shortest loss window (0.5 s at 50 Hz: 25 commands) is
+4 %, and a healthy radio link loses about 2 %; below it a single lost packet lands the flight."""
+MIN_DISTURBANCE_MPS2 = 1.0
+"""Least ``failsafe.max_disturbance_mps2``, m/s^2: nearly twice the largest a nominal flight's estimate holds for
+``DISTURBANCE_HOLD_S`` (0.56 m/s^2 at a 1 s landing's touchdown, 0.46 in a 1 s take-off; dry run and simulated
+Crazyflie and PX4 modules); at 1e-12 the flight stopped its motors 0.1 s after arming."""
+MIN_BLIND_DESCENT_MPS = 0.2
+"""Least ``failsafe.blind_descent_mps``, m/s: a blind landing's last 0.5 m (``flight.BLIND_SLOW_M``) then take 2.5 s,
+and the longest stale bound (``failsafe.mocap_timeout_s``, 0.5 s) passes before it begins: 3.0 s after the last pose,
+when the height's std reaches :data:`MIN_HEIGHT_SIGMA_M` (the toy V in the dry run: 0.10 m 2 s after the last pose,
+0.245 m after 3 s, 0.30 m after 3.3 s). A landing begun at that height reaches the ground before its estimate is
+too uncertain to land on; at 1e-12 m/s a mocap loss stopped the motors 0.55 m up."""
+MIN_HEIGHT_SIGMA_M = 0.25
+"""Least ``failsafe.max_height_sigma_m``, m: with :data:`MIN_BLIND_DESCENT_MPS`, see there; below it the height's
+bound stops a blind landing before it can reach the ground from 0.5 m (at 1e-12: wherever mocap is lost)."""
+MIN_POSITION_SIGMA_M = 0.6
+"""Least ``failsafe.max_position_sigma_m``, m: the horizontal std when the height's passes its bound (0.58 m at 0.30
+m, 3.3 s blind, measured as there): a lower bound stops a blind landing that the height's bound lets finish (at
+0.5 m a blind landing from 1.6 m stopped its motors 0.12 m up)."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -225,7 +258,9 @@ class FailsafeSection:
     on_mocap_stale: Literal["land", "stop"] = FailsafePolicy.on_mocap_stale
     on_mocap_fault: Literal["land", "stop"] = FailsafePolicy.on_mocap_fault
     """A second publisher on the body's key (its samples are never used)."""
-    max_tilt_deg: float = Field(FailsafePolicy.max_tilt_deg, gt=0, le=180)
+    max_tilt_deg: float = Field(FailsafePolicy.max_tilt_deg, ge=MIN_TILT_DEG, le=MAX_TILT_DEG)
+    """deg, within :data:`MIN_TILT_DEG` and :data:`MAX_TILT_DEG`, above ``gains.max_tilt_deg`` plus the roll target
+    (:func:`bound_issues`)."""
     geofence_lower: tuple[_FenceM, _FenceM, _FenceM] = FailsafePolicy.geofence_lower
     geofence_upper: tuple[_FenceM, _FenceM, _FenceM] = FailsafePolicy.geofence_upper
     """m, each coordinate within +-:data:`MAX_GEOFENCE_M`."""
@@ -233,25 +268,32 @@ class FailsafeSection:
     """crazyflie: a module's command round trip beyond this (median of its newest echoes) is a degraded link, s."""
     link_stop_latency_s: float = Field(FailsafePolicy.link_stop_latency_s, gt=0, le=MAX_REACTION_S)
     """crazyflie: beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
-    max_link_loss: float = Field(FailsafePolicy.max_link_loss, gt=0, le=1)
-    """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded."""
+    max_link_loss: float = Field(FailsafePolicy.max_link_loss, ge=MIN_LINK_LOSS, le=1)
+    """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded (at least
+    :data:`MIN_LINK_LOSS`)."""
     on_link_degraded: Literal["land", "stop"] = FailsafePolicy.on_link_degraded
     max_stall_s: float = Field(FailsafePolicy.max_stall_s, gt=0, le=MAX_REACTION_S)
     """A gap between control periods beyond this stops the motors (the modules have stopped theirs), s."""
     on_log_failure: Literal["land", "continue"] = FailsafePolicy.on_log_failure
     """The log writer failed (e.g. a full disk): land, or fly on unlogged."""
-    max_position_sigma_m: float = Field(FailsafePolicy.max_position_sigma_m, gt=0, le=MAX_GEOFENCE_M)
-    """Flying blind on the estimate, the motors stop beyond this horizontal position std, m..."""
-    max_height_sigma_m: float = Field(FailsafePolicy.max_height_sigma_m, gt=0, le=MAX_HEIGHT_SIGMA_M)
-    """...or beyond this height std, m (at most :data:`MAX_HEIGHT_SIGMA_M`)."""
-    blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, gt=0, le=MAX_BLIND_DESCENT_MPS)
+    max_position_sigma_m: float = Field(FailsafePolicy.max_position_sigma_m, ge=MIN_POSITION_SIGMA_M,
+                                        le=MAX_GEOFENCE_M)
+    """Flying blind on the estimate, the motors stop beyond this horizontal position std, m (at least
+    :data:`MIN_POSITION_SIGMA_M`)..."""
+    max_height_sigma_m: float = Field(FailsafePolicy.max_height_sigma_m, ge=MIN_HEIGHT_SIGMA_M,
+                                      le=MAX_HEIGHT_SIGMA_M)
+    """...or beyond this height std, m (:data:`MIN_HEIGHT_SIGMA_M` to :data:`MAX_HEIGHT_SIGMA_M`)."""
+    blind_descent_mps: float = Field(FailsafePolicy.blind_descent_mps, ge=MIN_BLIND_DESCENT_MPS,
+                                     le=MAX_BLIND_DESCENT_MPS)
     """A landing begun on stale mocap touches down at this speed, m/s (at most :data:`MAX_BLIND_DESCENT_MPS`:
-    faster touches down too hard)."""
-    max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, gt=0)
-    """Airborne, the measured position farther than this from the reference lands the flight, m (below the
-    geofence's diagonal: :func:`bound_issues`)."""
-    max_disturbance_mps2: float = Field(FailsafePolicy.max_disturbance_mps2, gt=0, le=100)
-    """The acceleration the model misses may not stay above this, m/s^2 (at most 100: 10 g)."""
+    faster touches down too hard; at least :data:`MIN_BLIND_DESCENT_MPS`: slower, the estimate is too uncertain
+    before it is down)."""
+    max_tracking_error_m: float = Field(FailsafePolicy.max_tracking_error_m, ge=MIN_TRACKING_ERROR_M)
+    """Airborne, the measured position farther than this from the reference lands the flight, m (at least
+    :data:`MIN_TRACKING_ERROR_M`; below the geofence's diagonal: :func:`bound_issues`)."""
+    max_disturbance_mps2: float = Field(FailsafePolicy.max_disturbance_mps2, ge=MIN_DISTURBANCE_MPS2, le=100)
+    """The acceleration the model misses may not stay above this, m/s^2 (at least :data:`MIN_DISTURBANCE_MPS2`,
+    at most 100: 10 g)."""
 
 
 @dataclass(frozen=True, config=_STRICT)
@@ -377,8 +419,9 @@ def axis_coupling(inertia) -> list[float]:
     return sorted(float(mu) for mu in np.linalg.eigvals(np.linalg.solve(j, np.diag(np.diag(j)))).real)
 
 
-def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
-    """The bounds that depend on other keys or on the assembly (``inertia``: its inertia, kg m^2, body frame):
+def bound_issues(cfg: FlightConfig, inertia, model=None) -> Iterator[tuple[str, str]]:
+    """The bounds that depend on other keys or on the assembly (``inertia``: its inertia, kg m^2, body frame;
+    ``model``: its :class:`~groundstation.control.model.ControlModel`, for the roll target's hover):
     ``(key, problem)`` for each key beyond its bound. The rules, and why:
 
     * ``gains.*_hz`` and ``*_zeta``: the loop rate realises them (:func:`loop_rate_needed`); the loop runs at
@@ -397,7 +440,10 @@ def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
       the newest pose of a working stream is that old, so a longer latency makes every pose stale on arrival;
     * ``mocap.position_noise``, ``attitude_noise_deg``: 3 standard deviations of the difference of two samples
       (``3 sqrt(2) sigma``) inside the subscriber's position and attitude gates, or genuine poses are rejected;
-    * ``trajectory.roll_deg``: below ``failsafe.max_tilt_deg``, or the target itself trips the tilt failsafe;
+    * ``trajectory.roll_deg``: below ``failsafe.max_tilt_deg``, or the target itself trips the tilt failsafe; with
+      the controller's lean limit (``gains.max_tilt_deg``: a shove, a reference far off) below it too, and
+      ``failsafe.max_tilt_deg`` above that limit, or the failsafe stops an assembly doing as it is told; one the
+      assembly hovers at (with ``model``: :func:`~groundstation.runtime.closed_loop.hover_problem`);
     * ``failsafe.max_stall_s``: at least :data:`MIN_STALL_PERIODS` control periods;
       ``failsafe.max_link_latency_s``: at least that too, and below ``link_stop_latency_s`` (degraded, land,
       before too slow, stop);
@@ -453,9 +499,20 @@ def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
         yield ("mocap.latency_s", f"{m.latency_s:g} s plus a sample interval ({1.0 / m.rate_hz:g} s at mocap.rate_hz) "
                                   f"is not below failsafe.mocap_timeout_s = {f.mocap_timeout_s:g} s: every pose "
                                   f"would be stale")
+    lean = cfg.gains.max_tilt_deg
     if abs(t.roll_deg) >= f.max_tilt_deg:
         yield ("trajectory.roll_deg", f"{t.roll_deg:g} deg is not below failsafe.max_tilt_deg = {f.max_tilt_deg:g} "
                                       f"deg: the target would trip the tilt failsafe")
+    elif lean >= f.max_tilt_deg:
+        yield ("failsafe.max_tilt_deg", f"{f.max_tilt_deg:g} deg is not above gains.max_tilt_deg = {lean:g} deg, "
+                                        f"the lean the controller may ask (a shove, a reference far off): the "
+                                        f"failsafe would stop an assembly doing as it is told")
+    elif abs(t.roll_deg) + lean >= f.max_tilt_deg:
+        yield ("trajectory.roll_deg", f"{t.roll_deg:g} deg with the controller's lean of up to gains.max_tilt_deg = "
+                                      f"{lean:g} deg tilts the assembly {abs(t.roll_deg) + lean:g} deg, not below "
+                                      f"failsafe.max_tilt_deg = {f.max_tilt_deg:g} deg")
+    elif model is not None:
+        yield from _hover_issues(model, t.roll_deg)
     floor = MIN_STALL_PERIODS * period
     for key in ("max_stall_s", "max_link_latency_s"):
         if getattr(f, key) < floor:
@@ -468,6 +525,24 @@ def bound_issues(cfg: FlightConfig, inertia) -> Iterator[tuple[str, str]]:
     if f.max_tracking_error_m >= diagonal:
         yield ("failsafe.max_tracking_error_m", f"{f.max_tracking_error_m:g} m is not below the geofence's diagonal "
                                                 f"({diagonal:.3g} m): it could never fire inside the fence")
+
+
+def _hover_issues(model, roll_deg: float) -> Iterator[tuple[str, str]]:
+    """The roll target's hover (:func:`bound_issues`): the roll key if the assembly hovers level, else the
+    assembly's."""
+    from groundstation.control.trajectory import euler_zyx
+    from groundstation.runtime.closed_loop import hover_problem, hover_roll_limit
+
+    problem = hover_problem(model, euler_zyx(math.radians(roll_deg), 0.0, 0.0))
+    if problem is None:
+        return
+    if roll_deg == 0.0 or hover_problem(model, euler_zyx(0.0, 0.0, 0.0)) is not None:
+        yield "assembly", problem
+        return
+    lo, hi = (math.floor(hover_roll_limit(model, sign) * 10.0) / 10.0 for sign in (-1.0, 1.0))
+    yield ("trajectory.roll_deg", f"{roll_deg:g} deg: the assembly cannot hover held at it "
+                                  f"({problem.removeprefix('the assembly cannot hover: ')}); it hovers at roll "
+                                  f"targets from {-lo:.1f} to {hi:.1f} deg")
 
 
 def read_assembly(path: Path):
@@ -488,6 +563,8 @@ def load_flight_config(path: str | Path) -> tuple[FlightConfig, Path]:
         assembly = read_assembly(base / cfg.assembly)
     except ConfigError as exc:
         raise ConfigError(str(exc), path=str(path), key="assembly") from None
-    for key, problem in bound_issues(cfg, assembly.inertia):
+    from groundstation.control.model import ControlModel
+
+    for key, problem in bound_issues(cfg, assembly.inertia, ControlModel.from_assembly(assembly)):
         raise ConfigError(problem, path=str(path), key=key)
     return cfg, base

@@ -75,6 +75,30 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
      {"geofence_upper = [3.5, 3.5, 3.5]": "geofence_upper = [1e300, 3.5, 3.5]"}, "failsafe.geofence_upper.0"),
     ("geofence_nan", "geofence_lower = [nan, -3.5, -0.2]",
      {"geofence_lower = [-3.5, -3.5, -0.2]": "geofence_lower = [nan, -3.5, -0.2]"}, "failsafe.geofence_lower.0"),
+    ("tilt_failsafe_1e-12_deg", "failsafe.max_tilt_deg = 1e-12 (it armed, then stopped the motors at once: an "
+     "emergency stop latches real Crazyflie modules)", {"max_tilt_deg = 75": "max_tilt_deg = 1e-12"},
+     "failsafe.max_tilt_deg: Input should be greater than or equal to 20"),
+    ("tilt_failsafe_180_deg", "failsafe.max_tilt_deg = 180 (a tilt failsafe that never acts)",
+     {"max_tilt_deg = 75": "max_tilt_deg = 180"}, "failsafe.max_tilt_deg: Input should be less than or equal to 90"),
+    ("tilt_failsafe_below_the_lean", "failsafe.max_tilt_deg = 25, the controller's lean limit 30 deg",
+     {"max_tilt_deg = 75": "max_tilt_deg = 25"}, "failsafe.max_tilt_deg", "gains.max_tilt_deg = 30"),
+    ("roll_target_59_deg_no_hover", "roll_deg = 59 and max_tilt_deg = 90 (the V hovers within 9 deg of level; the "
+     "refusal named neither file nor key)",
+     {"roll_deg = 0.0": "roll_deg = 59.0", "max_tilt_deg = 75": "max_tilt_deg = 90"},
+     "trajectory.roll_deg: 59 deg: the assembly cannot hover", "from -9.0 to 9.0 deg"),
+    ("disturbance_bound_1e-12", "failsafe.max_disturbance_mps2 = 1e-12 (the motors stopped 0.1 s after arming)",
+     {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_disturbance_mps2 = 1e-12"}, "failsafe.max_disturbance_mps2"),
+    ("blind_descent_1e-12_mps", "failsafe.blind_descent_mps = 1e-12 (on a mocap loss the motors stopped 0.55 m up)",
+     {"max_tilt_deg = 75": "max_tilt_deg = 75\nblind_descent_mps = 1e-12"}, "failsafe.blind_descent_mps"),
+    ("height_sigma_1e-12_m", "failsafe.max_height_sigma_m = 1e-12 (no blind landing: the motors stop where mocap is "
+     "lost)", {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_height_sigma_m = 1e-12"}, "failsafe.max_height_sigma_m"),
+    ("position_sigma_1e-12_m", "failsafe.max_position_sigma_m = 1e-12 (likewise)",
+     {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_position_sigma_m = 1e-12"}, "failsafe.max_position_sigma_m"),
+    ("tracking_bound_1e-12_m", "max_tracking_error_m = 1e-12 (it landed as it took off)",
+     {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_tracking_error_m = 1e-12"}, "failsafe.max_tracking_error_m"),
+    ("link_loss_1e-12", "kind crazyflie, max_link_loss = 1e-12 (one lost packet lands it)",
+     {'kind = "sim"': CRAZYFLIE, "max_tilt_deg = 75": "max_tilt_deg = 75\nmax_link_loss = 1e-12"},
+     "failsafe.max_link_loss"),
 ]
 for _name, _what, _changes, *_fragments in CONFIG_KEYS:
     def _case(cli, tmp_path, changes=_changes, fragments=_fragments):

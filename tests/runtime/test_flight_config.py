@@ -172,6 +172,8 @@ def test_the_sim_loop_runs_at_the_slower_of_control_and_physics():
     ({"mocap": {"latency_s": 0.3}}, "mocap.latency_s"),
     ({"mocap": {"latency_s": 0.2, "rate_hz": 10.0}}, "mocap.latency_s"),  # 0.2 s + 0.1 s sample interval
     ({"trajectory": {"roll_deg": -75.0}}, "trajectory.roll_deg"),
+    ({"trajectory": {"roll_deg": 45.0}}, "trajectory.roll_deg"),  # with the controller's 30 deg lean: 75 deg
+    ({"failsafe": {"max_tilt_deg": 30.0}}, "failsafe.max_tilt_deg"),  # not above the controller's lean (30 deg)
     ({"failsafe": {"max_stall_s": 0.005}}, "failsafe.max_stall_s"),  # two periods at 250 Hz: 8 ms
     ({"failsafe": {"max_link_latency_s": 0.02}}, "failsafe.max_link_latency_s"),  # not below the stop latency
     ({"failsafe": {"max_tracking_error_m": 10.6}}, "failsafe.max_tracking_error_m"),  # the fence: 10.57 m across
@@ -202,7 +204,7 @@ def test_a_preflight_watch_too_short_to_see_a_second_publisher_or_beyond_the_wai
 
 def test_cross_key_bounds_just_inside():
     toy, _ = load_assembly(TOY)
-    assert _issue(FlightConfig(assembly="x"), toy.inertia, mocap={"latency_s": 0.23}, trajectory={"roll_deg": 74.0},
+    assert _issue(FlightConfig(assembly="x"), toy.inertia, mocap={"latency_s": 0.23}, trajectory={"roll_deg": 44.9},
                   failsafe={"max_stall_s": 0.009, "max_tracking_error_m": 10.5},
                   backend={"motor_time_constant": 0.039}) == []
 
@@ -219,3 +221,65 @@ def test_an_access_control_file_that_is_not_text(tmp_path):
     (tmp_path / "acl.json5").write_bytes(b"\x00\x01\x02")
     with pytest.raises(ConfigError, match=r"^flight.toml: mocap.access_control: .*acl.json5: not a text file"):
         mocap_security(MocapSection(access_control="acl.json5"), tmp_path, "flight.toml")
+
+
+LOWER_BOUND_EXEMPT = {
+    "trajectory.size": "a figure-8 or circle of no size is a hover",
+    "trajectory.roll_deg": "any roll the assembly hovers at (bounded by the tilt failsafe and the hover)",
+    "trajectory.settle_s": "0: no settling (allowed; the attitude target steps to the trajectory's)",
+    "trajectory.landing_s": "a shorter landing is stretched to its height over 0.8 m/s",
+}
+"""Failsafe and trajectory numbers that may be as small as a positive number gets (geofence coordinates are positions,
+not bounds of a size: any is one; those that cannot be flown are refused with the plan)."""
+
+
+@pytest.mark.parametrize("kind", ["sim", "crazyflie"])
+def test_every_failsafe_and_trajectory_key_has_a_lower_bound(tmp_path, kind):
+    """1e-12 in each: before, failsafe.max_tilt_deg armed and stopped the motors at once (an emergency stop latches
+    real Crazyflie modules), max_disturbance_mps2 stopped them 0.1 s after arming, max_tracking_error_m landed as it
+    took off, blind_descent_mps (and the uncertainty bounds) stopped them in the air on a mocap loss."""
+    data = full_config(kind)
+    keys = [k for k, _ in numeric_keys(data) if k.startswith(("failsafe.", "trajectory."))
+            and k not in LOWER_BOUND_EXEMPT and not k.startswith("failsafe.geofence_")]
+    assert len(keys) >= 14, keys
+    log = tmp_path / "x.mcap"
+    for key in keys:
+        path = write_config(tmp_path / "f.toml", with_value(data, key, 1e-12))
+        with pytest.raises(ConfigError) as exc:
+            prepare(path, log_path=log)
+        named = exc.value.key == key or key.startswith(f"{exc.value.key}.") or key.split(".")[-1] in str(exc.value)
+        assert named and str(path) in str(exc.value) and "\n" not in str(exc.value), (key, str(exc.value))
+    assert not log.exists()
+
+
+def test_the_tilt_failsafe_is_one_that_acts(tmp_path):
+    """180 deg never acts (the rotors push the assembly down beyond 90 deg)."""
+    path = write_config(tmp_path / "f.toml", with_value(full_config("sim"), "failsafe.max_tilt_deg", 180.0))
+    with pytest.raises(ConfigError, match=r"failsafe\.max_tilt_deg: Input should be less than or equal to 90"):
+        load_flight_config(path)
+
+
+@pytest.mark.parametrize("roll, hovers", [(-8.9, True), (8.9, True), (-20.0, False), (40.0, False)])
+def test_a_roll_target_the_assembly_cannot_hover_at_names_the_file_and_the_key(tmp_path, roll, hovers):
+    """The toy V hovers at roll targets within +-9 deg; at 59 deg (tilt failsafe 90) the refusal named neither the
+    file nor the key (a preflight error: "the assembly cannot hover: ...")."""
+    data = with_value(full_config("sim"), "failsafe.max_tilt_deg", 90.0)
+    path = write_config(tmp_path / "f.toml", with_value(data, "trajectory.roll_deg", roll))
+    if hovers:
+        load_flight_config(path)
+        return
+    with pytest.raises(ConfigError) as exc:
+        load_flight_config(path)
+    assert str(exc.value).startswith(f"{path}: trajectory.roll_deg: {roll:g} deg: the assembly cannot hover")
+    assert str(exc.value).endswith("it hovers at roll targets from -9.0 to 9.0 deg")
+
+
+def test_an_assembly_that_cannot_hover_level_is_named_as_the_assembly():
+    from groundstation.assembly.assembly import Assembly
+    from groundstation.assembly.module import ModuleParams
+    from groundstation.assembly.topology import Topology
+    from groundstation.control.model import ControlModel
+
+    weak = Assembly(Topology.from_code("oE"), ModuleParams(u_max=1.0e6), np.zeros(3))  # 1.5 N each for 2.35 N
+    issues = list(bound_issues(FlightConfig(assembly="x"), weak.inertia, ControlModel.from_assembly(weak)))
+    assert [k for k, _ in issues] == ["assembly"] and "cannot hover" in issues[0][1]
