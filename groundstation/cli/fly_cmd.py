@@ -28,6 +28,7 @@ from groundstation.cli.common import (
     stderr_console,
     writable_output,
 )
+from groundstation.cli.mocap_cmd import BODY, BodyList, KeyChunks, ListenEndpoint, MockBodies
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
@@ -232,11 +233,13 @@ def recover_command(src: str, dst: str) -> int:
 @click.command("mocap-bridge")
 @click.option("--system", type=click.Choice(MOCAP_SYSTEMS), required=True, help="The mocap system's SDK.")
 @click.option("--host", default="", help="Mocap server address (unused for mock).")
-@click.option("--bodies", required=True, help="Comma-separated rigid body names to publish.")
-@click.option("--endpoint", default="tcp/127.0.0.1:7448", show_default=True, help="Zenoh endpoint to listen on.")
-@click.option("--key-prefix", default="mocap", show_default=True)
+@click.option("--bodies", type=BodyList(), required=True, help="Comma-separated rigid body names to publish.")
+@click.option("--endpoint", type=ListenEndpoint(), default="tcp/127.0.0.1:7448", show_default=True,
+              help="Zenoh endpoint to listen on.")
+@click.option("--key-prefix", type=KeyChunks("many"), default="mocap", show_default=True)
 @click.option("--y-up", is_flag=True, help="Convert a y-up stream (OptiTrack default) to z-up.")
-@click.option("--mock-bodies", default="", help='Mock system bodies, e.g. "a(0,0,1,1,0,0,0)" (x,y,z,qw,qx,qy,qz).')
+@click.option("--mock-bodies", type=MockBodies(), default="",
+              help='Mock system bodies, e.g. "a(0,0,1,1,0,0,0)" (x,y,z,qw,qx,qy,qz).')
 @click.option("--duration", type=FiniteFloat(min=0, min_open=True), default=None,
               help="Stop after this many seconds.")
 @click.option("--tls-ca", default=None, type=click.Path(dir_okay=False, exists=True),
@@ -274,11 +277,12 @@ PEERS = {k.peer_protocol: k for k in KINDS.values() if k.peer is not None}
 @click.argument("assembly", type=click.Path(dir_okay=False))
 @click.option("--protocol", type=click.Choice(list(PEERS)), default="crtp", show_default=True,
               help="; ".join(f"{p}: {k.summary} (fly with backend {k.name})" for p, k in PEERS.items()) + ".")
-@click.option("--port", type=int, default=19850, show_default=True,
+@click.option("--port", type=click.IntRange(1024, 65535), default=19850, show_default=True,
               help="UDP port of module 0; module i listens on port + i.")
-@click.option("--mocap", "endpoint", default="tcp/127.0.0.1:7448", show_default=True,
+@click.option("--mocap", "endpoint", type=ListenEndpoint(), default="tcp/127.0.0.1:7448", show_default=True,
               help="Zenoh endpoint the virtual mocap listens on.")
-@click.option("--body", default="assembly", show_default=True, help="Rigid body name (key mocap/<body>/pose).")
+@click.option("--body", type=BODY, default="assembly", show_default=True,
+              help="Rigid body name (key mocap/<body>/pose).")
 @click.option("--physics-hz", type=FiniteFloat(min=1, max=10000), default=None,
               help="Physics rate, Hz (default: the simulator's; 1000 with --firmware).")
 @click.option("--platform", type=click.Choice(["cf2", "cf21bl", "bolt"]), default="bolt", show_default=True,
@@ -317,6 +321,8 @@ def sim_peer_command(assembly: str, protocol: str, port: int, endpoint: str, bod
     kind = PEERS[protocol]
     peer_class, scheme = load(kind.peer), kind.peer_scheme
     asm, _ = load_assembly(assembly)
+    if port + asm.n - 1 > 65535:
+        raise UsageError(f"--port: {port}: module {asm.n - 1} would listen on {port + asm.n - 1}, beyond 65535")
     params = tuple(load_param_file(param_file).items()) if param_file else ()
     extra = {}
     if firmware_binary is not None:

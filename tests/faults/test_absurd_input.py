@@ -108,6 +108,9 @@ for _name, _what, _changes, *_fragments in CONFIG_KEYS:
 
 
 # -- options: nan, inf and values beyond the bounds ------------------------------------------------------------------
+SIM_PEER = ("sim-peer", TOY_ASSEMBLY, "--duration", "0.2")
+"""(Refused before it starts; a short run if not, never one without end.)"""
+BRIDGE = ("mocap-bridge", "--system", "mock", "--duration", "0.2")
 OPTIONS = [  # id, the command line, what stderr says
     ("simulate_roll_nan", ("simulate", TOY_ASSEMBLY, "--roll", "nan"), "'--roll': 'nan' is not a finite number"),
     ("simulate_duration_1e7", ("simulate", TOY_ASSEMBLY, "--duration", "1e7"),
@@ -119,6 +122,21 @@ OPTIONS = [  # id, the command line, what stderr says
      "'--sigma': 'inf' is not a finite number"),
     ("design_seed_negative", ("design", TOY_TASK, "--sample", "2", "--seed", "-1"),
      "'--seed': -1 is not in the range"),
+    ("sim_peer_port_negative", (*SIM_PEER, "--port", "-5"), "'--port': -5 is not in the range 1024<=x<=65535"),
+    ("sim_peer_port_0", (*SIM_PEER, "--port", "0"), "'--port': 0 is not in the range 1024<=x<=65535"),
+    ("sim_peer_port_65535", (*SIM_PEER, "--port", "65535"), "--port: 65535: module 1 would listen on 65536"),
+    ("sim_peer_mocap_port_0", (*SIM_PEER, "--mocap", "tcp/127.0.0.1:0"),
+     "'--mocap': tcp/127.0.0.1:0: the port must be 1-65535"),
+    ("sim_peer_body_wildcard", (*SIM_PEER, "--body", "**"), "'--body': must be one key chunk, concrete"),
+    ("bridge_bodies_wildcard", (*BRIDGE, "--bodies", "**"), "'--bodies': must be one key chunk, concrete"),
+    ("bridge_key_prefix_wildcard", (*BRIDGE, "--bodies", "a", "--key-prefix", "mocap/*"),
+     "'--key-prefix': must be key chunks separated by '/', concrete"),
+    ("bridge_mock_body_nan", (*BRIDGE, "--bodies", "a", "--mock-bodies", "a(nan,0,1,1,0,0,0)"),
+     "'--mock-bodies': 'a(nan,0,1,1,0,0,0)': need 7 finite numbers"),
+    ("bridge_mock_body_zero_quaternion", (*BRIDGE, "--bodies", "a", "--mock-bodies", "a(0,0,1,0,0,0,0)"),
+     "'--mock-bodies': 'a(0,0,1,0,0,0,0)': the quaternion's norm is 0, not 1"),
+    ("bridge_endpoint_port_70000", (*BRIDGE, "--bodies", "a", "--endpoint", "tcp/127.0.0.1:70000"),
+     "'--endpoint': tcp/127.0.0.1:70000: the port must be 1-65535"),
 ]
 for _name, _args, _fragment in OPTIONS:
     def _case(cli, tmp_path, args=_args, fragment=_fragment):
