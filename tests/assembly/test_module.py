@@ -26,6 +26,13 @@ def test_shipped_module_files_load_and_match_table_ii():
     ("mass = 0.24\nthrust = 3\n", "thrust"),
     ("c_f = -1.0\n", "c_f"),
     ("r = 'wide'\n", "r"),
+    # beyond a module's physics (module.py's bounds): optimize overflowed, or took them (inertia 1e-300, exit 0)
+    ("mass = 1e300\n", "mass"), ("mass = 0.001\n", "mass"), ("l_arm = 1e300\n", "l_arm"), ("l_c = 1e-9\n", "l_c"),
+    ("c_m = 1e300\n", "c_m"), ("c_m = 1e-12\n", "c_m"),
+    ("inertia = [1e-300, 1e-300, 1e-300]\n", "inertia"),
+    ("inertia = [1.0, 1.0, 1.0]\n", "inertia"),  # a radius of gyration of 2 m for a module 0.22 m across
+    ("inertia = [1e-4, 1e-4, 1e-3]\n", "inertia"),  # one principal moment above the sum of the other two
+    ("frame_half_extents = [0.085, 0.085, 1e-9]\n", "frame_half_extents.2"),
 ])
 def test_bad_module_file_names_file_and_key(tmp_path, text, key):
     f = tmp_path / "bad.toml"

@@ -146,6 +146,30 @@ for _name, _args, _fragment in OPTIONS:
     bad_input(_shown, f"exit 2, one line naming {_args[-2]}")(_case)
 
 
+# -- module files beyond a module's physics ---------------------------------------------------------------------------
+MODULE_KEYS = [  # id, the module file's change, what stderr names after the file
+    ("mass_1e300_kg", "mass = 1e300", {"mass = 0.24 ": "mass = 1e300 "},
+     "mass: Input should be less than or equal to 100"),
+    ("arm_1e300_m", "l_arm = 1e300", {"l_arm = 0.06 ": "l_arm = 1e300 "},
+     "l_arm: Input should be less than or equal to 2"),
+    ("drag_torque_1e300", "c_m = 1e300", {"c_m = 1.06e-8 ": "c_m = 1e300 "},
+     "c_m: c_m / c_f = 2.58e+306 m is outside"),
+    ("inertia_1e-300", "inertia = [1e-300, 1e-300, 1e-300] (optimize took it, exit 0)",
+     {"inertia = [6.0e-4, 6.0e-4, 1.1e-3]": "inertia = [1e-300, 1e-300, 1e-300]"}, "inertia: [1e-300, 1e-300, 1e-300]"),
+]
+for _name, _what, _changes, _fragment in MODULE_KEYS:
+    def _case(cli, tmp_path, changes=_changes, fragment=_fragment):
+        text = (ROOT / "configs/modules/paper_table2.toml").read_text()
+        for old, new in changes.items():
+            assert old in text
+            text = text.replace(old, new)
+        module = tmp_path / "module.toml"
+        module.write_text(text)
+        _refused(cli, ("optimize", TOY_TASK, "--topology", "oS", "--modules", str(module)), f"{module}: {fragment}")
+    _case.__name__ = f"f_absurd_module_{_name}"
+    bad_input(f"optimize with a module file of {_what}", f"exit 2 naming the file and {_fragment.split(':')[0]}")(_case)
+
+
 # -- files that are not text where text belongs ----------------------------------------------------------------------
 def _mcap(tmp_path) -> Path:
     """A small, real MCAP file (binary: magic, records with length prefixes)."""
