@@ -210,12 +210,11 @@ def recover_command(src: str, dst: str) -> int:
     and say what was dropped."""
     from pathlib import Path
 
-    from groundstation.errors import UsageError
     from groundstation.flightlog.mcap_log import recover
+    from groundstation.flightlog.salvage import log_file
     from groundstation.output import writing
 
-    if not Path(src).is_file():
-        raise UsageError(f"{src}: file not found")
+    log_file(src)  # one line naming it unless a regular file: not found, a device (/dev/zero), a FIFO
     out = writable_output(dst, (".mcap",))
     with writing(out):
         counts = recover(src, out)

@@ -15,11 +15,20 @@ survives, the messages lost per channel. When the summary section's CRC matches,
 channels is read first, so a damaged first chunk (where every channel is defined) does not orphan every later
 message, and its message count makes the number of messages lost exact. A file cut short (both processes of
 ``fly`` killed) is damage too: the record the file ends in is lost.
+
+A record outside the chunks (the header, a metadata record, a message index) that does not parse is skipped alone
+when where it ends can be told (:func:`_resync`): at the end its length field gives, or, when that field is what
+is damaged, at the end of its content; either way only if a sound record follows. A ``config`` or ``assembly``
+metadata record whose value is not the JSON object the flight wrote is damage too, skipped and named: no CRC of
+its own covers it (the data section's CRC says only that something outside the chunks changed), and one flipped
+bit there made ``replay`` refuse the whole log and ``log recover`` copy it.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import stat
 import struct
 import zlib
 from collections import Counter
@@ -64,6 +73,10 @@ MAX_COMPRESSION_NAME = 8
 """Longest compression name a chunk may carry ("zstd", "lz4" or none): a cheap test of a candidate chunk."""
 SCAN_BLOCK = 1 << 16
 """Bytes read at a time when scanning for the next intact chunk."""
+RESYNC_BYTES = 1 << 20
+"""Most bytes of a damaged record outside the chunks parsed to find where its content ends."""
+JSON_METADATA = frozenset({"config", "assembly"})
+"""Metadata records whose value a flight writes as a JSON object (``runtime/fly.py``)."""
 WARNING_LINES = 10
 """Damaged stretches described one by one in :meth:`LogScan.warnings`; the summary line counts them all."""
 
@@ -86,6 +99,8 @@ REASONS = {
     "summary": "the summary section or footer is damaged or missing; not used, the data section was read",
     "data crc": "the data section's CRC does not match though every chunk's does: a record outside the chunks "
                 "(metadata, an index) is damaged",
+    "metadata": "a metadata record is damaged",
+    "record": "a record outside the chunks (the header, a message index) is damaged",
 }
 """Why something was skipped, by the key :meth:`LogScan.dropped` counts it under."""
 
@@ -111,6 +126,8 @@ class Damage:
     lost: dict[str, int] | None
     """Messages lost per topic (``channel N`` when its record is lost too); None when unknown (no intact message
     index describes the stretch)."""
+    note: str = ""
+    """Which record and why, for a record outside the chunks skipped alone (reasons ``metadata`` and ``record``)."""
 
     @property
     def messages(self) -> int | None:
@@ -123,6 +140,8 @@ class Damage:
         where = f"bytes {self.span[0]}-{self.span[1]}"
         if self.reason in ("summary", "data crc"):
             return f"{where}: {REASONS[self.reason]}"
+        if self.reason in ("metadata", "record"):
+            return f"{where}: {self.note}: skipped"
         lost = "messages unknown" if self.lost is None else _count(self.messages, "message") + (
             " (" + ", ".join(f"{t}: {n}" for t, n in sorted(self.lost.items(), key=lambda x: -x[1])) + ")"
             if self.lost else "")
@@ -164,6 +183,7 @@ class LogScan:
         """Schema, Channel, Metadata, Attachment and Message records in file order (an intact summary's schemas
         and channels first); never a message whose channel is unknown. A file that is not an MCAP file, or cannot
         be read, is a :class:`ConfigError` naming it."""
+        log_file(self.path)  # never opened if it is not a regular file: a FIFO would block, /dev/zero never end
         try:
             with open(self.path, "rb") as fh:
                 yield from self._records(fh)
@@ -205,8 +225,10 @@ class LogScan:
     # -- the pass ---------------------------------------------------------------------------------------------------
     def _records(self, fh: BinaryIO) -> Iterator[McapRecord]:
         self._size = os.fstat(fh.fileno()).st_size
-        if fh.read(len(MAGIC)) != MAGIC:
-            raise ConfigError("not an MCAP file", path=str(self.path))
+        magic = fh.read(len(MAGIC))
+        if magic != MAGIC:
+            raise ConfigError("not an MCAP file" if magic else "empty file, not an MCAP flight log",
+                              path=str(self.path))
         summary = _summary(fh, self._size)
         end = self._size
         if summary is not None:
@@ -218,7 +240,18 @@ class LogScan:
             try:
                 opcode, raw, found = _record(fh, pos, end)
             except _Bad as bad:
-                pos = self._skip(fh, pos, end, bad.reason)
+                resync = _resync(fh, pos, end, bad.reason)
+                if resync is None:
+                    pos = self._skip(fh, pos, end, bad.reason)
+                else:
+                    resume, _, reason, note = resync
+                    self.damage.append(Damage(reason, (pos, resume), 0, {}, note))
+                    pos = resume
+                continue
+            if opcode == Opcode.METADATA and (why := _metadata_fault(found[0])) is not None:
+                self.damage.append(Damage("metadata", (pos, pos + len(raw)), 0, {},
+                                          f"the {found[0].name} metadata record is damaged ({why})"))
+                pos += len(raw)
                 continue
             if opcode == Opcode.DATA_END:
                 self._check_data_crc(found[0], crc, pos)
@@ -342,18 +375,13 @@ def _record(fh: BinaryIO, pos: int, end: int) -> tuple[int, bytes, list[McapReco
 
 
 def _chunk_at(fh: BinaryIO, pos: int, end: int) -> bool:
-    """Whether an intact chunk starts at ``pos``: its header adds up (cheap, rules out nearly every stray chunk
-    opcode byte) and its CRC matches."""
+    """Whether an intact chunk starts at ``pos``: its opcode says so, its header adds up (cheap, rules out nearly
+    every stray chunk opcode byte) and its CRC matches."""
     fh.seek(pos)
-    head = fh.read(_RECORD.size + _CHUNK_HEAD.size + MAX_COMPRESSION_NAME + _DATA_LENGTH.size)
-    if len(head) < _RECORD.size + _CHUNK_HEAD.size:
+    if fh.read(1) != _CHUNK_OPCODE:
         return False
-    opcode, length = _RECORD.unpack_from(head)
-    name_length = _CHUNK_HEAD.unpack_from(head, _RECORD.size)[-1]
-    at = _RECORD.size + _CHUNK_HEAD.size + name_length
-    if (opcode != Opcode.CHUNK or name_length > MAX_COMPRESSION_NAME or len(head) < at + _DATA_LENGTH.size
-            or length > MAX_RECORD_BYTES or pos + _RECORD.size + length > end
-            or length != at - _RECORD.size + _DATA_LENGTH.size + _DATA_LENGTH.unpack_from(head, at)[0]):
+    length = _chunk_shaped(fh, pos, end)
+    if length is None:
         return False
     fh.seek(pos + _RECORD.size)
     try:
@@ -361,6 +389,23 @@ def _chunk_at(fh: BinaryIO, pos: int, end: int) -> bool:
     except _Bad:
         return False
     return True
+
+
+def _chunk_shaped(fh: BinaryIO, pos: int, end: int) -> int | None:
+    """The body length of the record at ``pos`` if its header adds up as a chunk's, whatever its opcode (a chunk
+    whose opcode byte is damaged is still one); else None."""
+    fh.seek(pos)
+    head = fh.read(_RECORD.size + _CHUNK_HEAD.size + MAX_COMPRESSION_NAME + _DATA_LENGTH.size)
+    if len(head) < _RECORD.size + _CHUNK_HEAD.size:
+        return None
+    _, length = _RECORD.unpack_from(head)
+    name_length = _CHUNK_HEAD.unpack_from(head, _RECORD.size)[-1]
+    at = _RECORD.size + _CHUNK_HEAD.size + name_length
+    if (name_length > MAX_COMPRESSION_NAME or len(head) < at + _DATA_LENGTH.size
+            or length > MAX_RECORD_BYTES or pos + _RECORD.size + length > end
+            or length != at - _RECORD.size + _DATA_LENGTH.size + _DATA_LENGTH.unpack_from(head, at)[0]):
+        return None
+    return length
 
 
 def _next_chunk(fh: BinaryIO, start: int, end: int) -> int:
@@ -378,6 +423,117 @@ def _next_chunk(fh: BinaryIO, start: int, end: int) -> int:
             i = block.find(_CHUNK_OPCODE, i + 1)
         pos += len(block)
     return end
+
+
+_KINDS = {Opcode.HEADER: "header", Opcode.SCHEMA: "schema", Opcode.CHANNEL: "channel",
+          Opcode.MESSAGE_INDEX: "message index", Opcode.METADATA: "metadata", Opcode.ATTACHMENT: "attachment"}
+"""The records outside the chunks that :func:`_resync` skips alone, by what the operator is told they are."""
+
+
+def _resync(fh: BinaryIO, pos: int, end: int, reason: str) -> tuple[int, McapRecord | None, str, str] | None:
+    """Where reading goes on after the damaged record at ``pos`` (why: ``reason``, a key of :data:`REASONS`) when
+    it is a record outside the chunks and where it ends can be told: at the end its length field gives, or, when
+    that field is what is damaged, at the end of its content (which parses then); either way only if a sound
+    record, or the data section's end, follows there. Returns that offset, the record's content when it parsed,
+    the damage's reason and its note; None otherwise (a chunk, a record shaped as one whose opcode byte is
+    damaged, an unknown opcode: reading resumes at the next intact chunk)."""
+    fh.seek(pos)
+    head = fh.read(_RECORD.size)
+    if len(head) < _RECORD.size:
+        return None
+    opcode, length = _RECORD.unpack(head)
+    if opcode not in _KINDS or _chunk_shaped(fh, pos, end) is not None:  # a chunk whose opcode is damaged
+        return None
+    fh.seek(pos + _RECORD.size)
+    body = fh.read(max(min(length, RESYNC_BYTES, end - pos - _RECORD.size), 0))
+    if opcode == Opcode.METADATA:
+        name = _metadata_name(body)
+        what, kind = ("a metadata record" if name is None else f"the {name} metadata record"), "metadata"
+    else:
+        what, kind = f"the {_KINDS[opcode]} record", "record"
+    at = pos + _RECORD.size + length
+    if at <= end and _sound_at(fh, at, end):
+        why = "its CRC does not match" if reason == "crc" else "it does not parse"
+        return at, None, kind, f"{what} is damaged ({why})"
+    stream = ReadDataStream(BytesIO(body))
+    try:
+        record = _READERS[opcode](stream)
+    except Exception:  # noqa: BLE001 - as in _parse
+        return None
+    at = pos + _RECORD.size + stream.count
+    if not _sound_at(fh, at, end):
+        return None
+    return at, record, kind, f"{what} is damaged (its length field is wrong)"
+
+
+def _sound_at(fh: BinaryIO, pos: int, end: int) -> bool:
+    """Whether the data section ends at ``pos`` or a record that reads (a chunk: its CRC matches) starts there."""
+    if pos == end:
+        return True
+    try:
+        _record(fh, pos, end)
+    except _Bad:
+        return False
+    return True
+
+
+def _metadata_name(body: bytes) -> str | None:
+    """The name at the start of a metadata record's ``body``, if it reads as one (a short printable string)."""
+    n = int.from_bytes(body[:4], "little")
+    try:
+        name = body[4:4 + n].decode("ascii")
+    except UnicodeDecodeError:
+        return None
+    return name if 0 < n <= 64 and len(name) == n and name.isprintable() else None
+
+
+def _metadata_fault(rec: Metadata) -> str | None:
+    """Why a metadata record of :data:`JSON_METADATA` is not what the flight wrote (None: it is, or it is another
+    record): its value must be a JSON object."""
+    if rec.name not in JSON_METADATA:
+        return None
+    value = rec.metadata.get("value")
+    if value is None:
+        return "it has no value"
+    try:
+        parsed = json.loads(value)
+    except (ValueError, RecursionError):
+        return "its value is not JSON"
+    return None if isinstance(parsed, dict) else "its value is not a JSON object"
+
+
+_FILE_KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO"),
+               (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"))
+
+
+def log_file(path: str | Path) -> Path:
+    """``path``, a regular file to read a log from; else a :class:`ConfigError` naming it and saying what it is
+    (never opened: a FIFO would block, ``/dev/zero`` never end)."""
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise ConfigError("file not found", path=str(p)) from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read: {exc.strerror or exc}", path=str(p)) from None
+    if not stat.S_ISREG(mode):
+        kind = next((name for test, name in _FILE_KINDS if test(mode)), "an unknown kind")
+        raise ConfigError(f"not a regular file ({kind}), not an MCAP flight log", path=str(p))
+    return p
+
+
+def read_header(fh: BinaryIO) -> McapRecord | None:
+    """The first record of the MCAP file open in ``fh`` (past its magic, checked by the caller): a flight log's
+    :class:`Header`, which names the program that wrote it. A header whose length field alone is damaged is read
+    from its content (:func:`_resync`; :class:`LogScan` names the damage); None when it does not read, or the first
+    record is a chunk."""
+    end = os.fstat(fh.fileno()).st_size
+    try:
+        opcode, _, found = _record(fh, len(MAGIC), end)
+    except _Bad as bad:
+        resync = _resync(fh, len(MAGIC), end, bad.reason)
+        return None if resync is None else resync[1]
+    return None if opcode == Opcode.CHUNK else found[0]
 
 
 def _summary(fh: BinaryIO, size: int) -> _Summary | None:

@@ -322,10 +322,12 @@ class Replay:
     """The file ended cleanly with nothing damaged (False: cut short by a crash, or damaged; everything intact was
     read)."""
     warnings: tuple[str, ...]
-    """What reading skipped: one line per damaged stretch and a line of totals (empty for an intact log)."""
+    """What reading skipped: one line per damaged stretch and a line of totals (empty for an intact log); then what
+    could not be done for want of metadata (a re-run without the log's gains or assembly)."""
     metadata: dict
-    """``config`` (the flight config, a dict), ``config_path``, ``code_version``, ``assembly`` (the assembly record,
-    None in a log before it was metadata) and ``started_s`` (when flight time 0 was, s since the epoch)."""
+    """``config`` (the flight config, a dict; empty when its record was skipped as damaged), ``config_path``,
+    ``code_version``, ``assembly`` (the assembly record, None in a log before it was metadata or when its record
+    was skipped as damaged) and ``started_s`` (when flight time 0 was, s since the epoch)."""
     metrics: ReplayFigures
     events: list
     """(flight time s, level, text), every event the flight logged in the window."""
@@ -336,25 +338,66 @@ class Replay:
     rerun: RerunFigures | None
 
 
-def _metadata_json(metadata: dict, src: str, key: str, default: str) -> dict | None:
-    """The log's ``key`` metadata, parsed: a JSON object (or null); else a ConfigError naming file and key."""
+def _metadata_json(metadata: dict, src: str, key: str) -> dict | None:
+    """The log's ``key`` metadata, parsed (None when the log has none). The reader skips, as damage, a ``config``
+    or ``assembly`` record that is not a JSON object (:mod:`groundstation.flightlog.salvage`); one that got past
+    it is a ConfigError naming file and key."""
+    if not metadata.get(key):
+        return None
     try:
-        value = json.loads(metadata.get(key, default) or default)
+        value = json.loads(metadata[key])
     except (ValueError, RecursionError):
         raise ConfigError(f"the log's {key} metadata is not JSON", path=src, key=key) from None
-    if value is not None and not isinstance(value, dict):
+    if not isinstance(value, dict):
         raise ConfigError(f"the log's {key} metadata is not a JSON object", path=src, key=key)
     return value
 
 
+NO_CONFIG = "the log has no intact config metadata (its record skipped as damaged, or never written)"
+"""Why a log's flight config is unknown."""
+
+
 def log_config(metadata: dict, src: str) -> dict:
-    """The flight config the log was flown with (its ``config`` metadata)."""
-    return _metadata_json(metadata, src, "config", "{}") or {}
+    """The flight config the log was flown with (its ``config`` metadata); a ConfigError when the log has none
+    (what it holds, a latency, a gain, would otherwise be taken for 0 or a default without a word)."""
+    config = _metadata_json(metadata, src, "config")
+    if config is None:
+        raise ConfigError(NO_CONFIG, path=src, key="config")
+    return config
 
 
 def _assembly(metadata: dict, src: str) -> dict | None:
-    """The log's assembly record (None: a log written before the assembly was metadata)."""
-    return _metadata_json(metadata, src, "assembly", "null")
+    """The log's assembly record (None: a log written before the assembly was metadata, or its record skipped as
+    damaged)."""
+    return _metadata_json(metadata, src, "assembly")
+
+
+def _rerun(metadata: dict, src: str, gains: Gains | None, allocation: str | None) -> tuple[Rerun | None, str]:
+    """The re-run of the log's periods, or why there is none: it needs the log's assembly record, and unless
+    ``gains`` are given its config's gains and allocation (what ``--rerun-with`` gives instead). A malformed
+    assembly record is refused naming its key (:class:`Rerun`)."""
+    record = _assembly(metadata, src)
+    if record is None:
+        return None, ("not re-run: the log has no intact assembly metadata (its record skipped as damaged, or a log "
+                      "written before it was metadata): the modules' geometry is unknown")
+    config = _metadata_json(metadata, src, "config")
+    if gains is None:
+        rerun_with = "; --rerun-with FLIGHT.toml gives them"
+        if config is None:
+            return None, f"not re-run: {NO_CONFIG}: the gains and allocation it flew with are unknown{rerun_with}"
+        try:
+            gains = Gains(**config["gains"])
+        except (KeyError, TypeError, ValueError):
+            return None, f"not re-run: the log's config metadata has no usable gains{rerun_with}"
+    return Rerun(record, config or {}, gains, allocation, src), ""
+
+
+def _skipped(log, malformed: dict[str, int]) -> str:
+    """What reading skipped, for the error of a log left with nothing to analyse: its damage (how many chunks and
+    messages) and its records that are not what their topic holds; empty if nothing was."""
+    said = ([log.skipped] if log.skipped else []) + [f"{n} message(s) on {topic} not what the topic holds"
+                                                     for topic, n in malformed.items()]
+    return f" (the log is damaged: {'; '.join(said)})" if said else ""
 
 
 MOCAP_COUNTS = ("rejected", "malformed", "missed")
@@ -400,6 +443,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     max_start_error = 0.0
     malformed: dict[str, int] = {}
     rr: Rerun | None = None
+    not_rerun = ""
     lo = -math.inf if t_from is None else t_from
     hi = math.inf if t_to is None else t_to
     windowed = lo > -math.inf or hi < math.inf
@@ -428,8 +472,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
                 if metrics is None:
                     metrics = FlightMetrics(len(d["modules"]))
                     if rerun:
-                        rr = Rerun(_assembly(log.metadata, src), log_config(log.metadata, src),
-                                   gains, allocation, src)
+                        rr, not_rerun = _rerun(log.metadata, src, gains, allocation)
                 if d["phase"] == Phase.TRACK:
                     track_first = t if track_first is None else track_first
                     track_last = t
@@ -468,9 +511,10 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             # written by another program): skipped and counted, like a record that is not JSON.
             malformed[rec.topic] = malformed.get(rec.topic, 0) + 1
     if metrics is None and flew:
-        raise ConfigError("the log has no control period to analyse in the window", path=src)
+        raise ConfigError("the log has no control period to analyse in the window" + _skipped(log, malformed),
+                          path=src)
     if metrics is None and not (summary or events_raw):
-        raise ConfigError("the log has no control period to analyse", path=src)
+        raise ConfigError("the log has no control period to analyse" + _skipped(log, malformed), path=src)
     if metrics is None:  # never flew (preflight refused, stopped before arming): its events and its end
         metrics = FlightMetrics(0)
         offset = events_raw[0][0] if events_raw else None
@@ -498,10 +542,11 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
                np.array([r[3] for r in rows]).reshape(-1, 3, 3), np.array([r[4] for r in rows]),
                np.array([r[5] for r in rows]), np.array([r[6] for r in rows]))
-    meta = {"config": log_config(log.metadata, src), "code_version": log.metadata.get("code_version", ""),
+    meta = {"config": _metadata_json(log.metadata, src, "config") or {},
+            "code_version": log.metadata.get("code_version", ""),
             "config_path": log.metadata.get("config_path", ""), "assembly": _assembly(log.metadata, src),
             "started_s": offset}
     warnings = log.warnings + tuple(f"{n} message(s) on {topic} are not what the topic holds: skipped"
-                                    for topic, n in malformed.items())
+                                    for topic, n in malformed.items()) + ((not_rerun,) if not_rerun else ())
     return Replay(Path(path), log.complete and not malformed, warnings, meta, m, events, timeline, s,
                   rr.stats.result() if rr else None)

@@ -2,7 +2,8 @@
 
 The reader goes through the file front to back (:class:`~groundstation.flightlog.salvage.LogScan`: it needs no
 summary section, so a log recovered after a crash, or cut short by a crash, reads too, up to its last complete
-chunk; a damaged chunk or record is skipped and reading goes on with the next intact chunk) and decodes JSON
+chunk; a damaged chunk or record is skipped and reading goes on with the next intact one, a ``config`` or
+``assembly`` metadata record that is not the JSON object the flight wrote too) and decodes JSON
 channels to dicts (a record of an older log in today's shape, :func:`upgraded`) and ``/log`` to (level, text).
 Memory does not grow with the file: nothing is kept but the channel table.
 """
@@ -18,11 +19,10 @@ from pathlib import Path
 import numpy as np
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from mcap.records import Channel, Header, Message, Metadata
-from mcap.stream_reader import StreamReader
 
 from groundstation.errors import ConfigError
 from groundstation.flightlog.mcap_log import LIBRARY
-from groundstation.flightlog.salvage import LogScan
+from groundstation.flightlog.salvage import MAGIC, LogScan, log_file, read_header
 
 LEVEL_NAMES = {Log.DEBUG: "debug", Log.INFO: "info", Log.WARNING: "warning", Log.ERROR: "error",
                Log.FATAL: "fatal"}
@@ -50,6 +50,8 @@ class LogFile:
     short by a crash or damaged."""
     warnings: tuple[str, ...] = ()
     """What reading skipped, one line per damaged stretch and a line of totals (empty for an intact log)."""
+    skipped: str = ""
+    """The line of totals of what reading skipped as damaged (empty when nothing was)."""
 
     def records(self, topics: set[str] | None = None, progress=None) -> Iterator[LogRecord]:
         """Every intact message of ``topics`` (all if None), in file order (log time order); ``progress(fraction)``
@@ -75,6 +77,7 @@ class LogFile:
                         continue
                     yield LogRecord(ch.topic, rec.log_time * 1e-9, rec.publish_time * 1e-9, data)
         self.complete = scan.complete and not undecodable
+        self.skipped = scan.warnings()[-1] if scan.damage else ""
         self.warnings = tuple(scan.warnings()) + tuple(f"{n} message(s) on {topic} are not what the topic holds "
                                                        f"(not a JSON object): skipped"
                                                        for topic, n in undecodable.items())
@@ -139,17 +142,24 @@ def _decode(ch: Channel, data: bytes) -> object:
 
 
 def open_log(path: str | Path) -> LogFile:
-    """A flight log of this program; a file that is not one is a :class:`ConfigError` naming it (one line)."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError("file not found", path=str(p))
-    with open(p, "rb") as fh:
-        try:
-            first = next(StreamReader(fh, skip_magic=False).records)
-        except StopIteration:
-            raise ConfigError("empty file, not an MCAP flight log", path=str(p)) from None
-        except Exception:  # noqa: BLE001 - the mcap reader raises several types for a foreign file
-            raise ConfigError("not an MCAP file", path=str(p)) from None
+    """A flight log of this program; a file that is not one is a :class:`ConfigError` naming it and saying what it
+    is (one line): not found, not a regular file, empty, not an MCAP file, another program's, or an MCAP file whose
+    header record (which names the program) does not read, which ``log recover`` may salvage."""
+    p = log_file(path)
+    try:
+        with open(p, "rb") as fh:
+            magic = fh.read(len(MAGIC))
+            first = read_header(fh) if magic == MAGIC else None
+    except OSError as exc:
+        raise ConfigError(f"cannot read: {exc.strerror or exc}", path=str(p)) from None
+    if not magic:
+        raise ConfigError("empty file, not an MCAP flight log", path=str(p))
+    if magic != MAGIC:
+        raise ConfigError("not an MCAP file", path=str(p))
+    if first is None:
+        raise ConfigError("damaged: an MCAP file whose header record (which names the program that wrote it) does "
+                          "not read; groundstation log recover may salvage its intact records into a new log",
+                          path=str(p))
     if not isinstance(first, Header) or not first.library.startswith(LIBRARY):
         library = first.library if isinstance(first, Header) else "?"
         raise ConfigError(f"an MCAP file, but not a flight log of groundstation (written by {library!r})",

@@ -1,5 +1,6 @@
 import csv
 import json
+import os
 
 import pytest
 
@@ -82,6 +83,23 @@ def test_bad_input_is_one_line_and_exit_2(cli, two_logs, tmp_path):
                           ((two_logs[0], "--from", "900"), "no control period to analyse in the window")]:
         code, out, err = cli("replay", *args)
         assert code == 2 and out == "" and message in err and err.count("\n") == 1, (args, err)
+
+
+def test_a_file_that_is_not_a_regular_one_is_one_line_saying_what_it_is(cli, tmp_path):
+    """``replay`` and ``log recover`` (one check, never opening it: a FIFO would block, /dev/zero never end) of a
+    device, a FIFO and an empty file: one line naming it and what it is, exit 2. Before: "file not found" for
+    /dev/zero and /dev/null, which exist."""
+    fifo, empty = tmp_path / "fifo.mcap", tmp_path / "empty.mcap"
+    os.mkfifo(fifo)
+    empty.touch()
+    device = "not a regular file (a character device), not an MCAP flight log"
+    for path, what in [("/dev/zero", device), ("/dev/null", device),
+                       (str(fifo), "not a regular file (a FIFO), not an MCAP flight log"),
+                       (str(empty), "empty file, not an MCAP flight log")]:
+        for args in (("replay", path), ("log", "recover", path, str(tmp_path / "r.mcap"))):
+            code, out, err = cli(*args)
+            assert code == 2 and out == "" and err == f"groundstation: error: {path}: {what}\n", (args, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.mcap", "fifo.mcap"]
 
 
 def test_series_stay_bounded():

@@ -12,12 +12,14 @@ import json
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
 from tests.disks import full, tiny_disk
 from tests.faults.table import Fault, process_fault, rows
 from tests.flightlog.damage import Expected, chunks_of, expected, flight_log, flipped, middle_of, spread, total_messages
+from tests.replay.test_reader import config_bit_flipped, leading_records, totals
 
 
 def _warned(err: str, log: str) -> list[str]:
@@ -118,6 +120,110 @@ def f_log_footer_damaged(cli, tmp_path):
                "as for the footer: every message read, the summary named as damaged, nothing dropped")
 def f_log_summary_damaged(cli, tmp_path):
     _summary_or_footer(cli, tmp_path, "summary")
+
+
+def _said(cli, log: Path, want: Expected) -> list[str]:
+    """What ``replay`` warned of (:func:`_replayed`), each line without its prefix."""
+    return [line.removeprefix(f"groundstation: warning: {log.name}: ") for line in _replayed(cli, log, want)]
+
+
+def _metadata_names(log: Path) -> set[str]:
+    with open(log, "rb") as fh:
+        return {m.name for m in make_reader(fh).iter_metadata()}
+
+
+@process_fault("one bit flipped inside the JSON of a flight log's config metadata (which no CRC of its own covers)",
+               "replay: every message read, one line naming the config record as damaged and skipped, --rerun says "
+               "it cannot get the gains (--rerun-with gives them), exit 0; log recover: every message copied, the "
+               "record dropped and named, the copy replays")
+def f_log_config_metadata_bit_flipped(cli, tmp_path):
+    """Before: replay refused the whole log ("config: the log's config metadata is not JSON", exit 2) and log
+    recover copied the record, so its copy was refused the same way."""
+    log = flight_log()
+    bad, (start, end) = config_bit_flipped(log, tmp_path / "config.mcap")
+    named = [f"bytes {start}-{end}: the config metadata record is damaged (its value is not JSON): skipped",
+             totals(log)]
+    assert _said(cli, bad, expected(log)) == named
+    code, out, err = cli("replay", str(bad), "--rerun", "--json")
+    assert code == 0 and "rerun" not in json.loads(out)[0] and err.splitlines()[-1] == (
+        f"groundstation: warning: {bad.name}: not re-run: the log has no intact config metadata (its record skipped "
+        f"as damaged, or never written): the gains and allocation it flew with are unknown; --rerun-with FLIGHT.toml "
+        f"gives them"), err
+    with open(log, "rb") as fh:
+        flown = next(m.metadata["value"] for m in make_reader(fh).iter_metadata() if m.name == "config_path")
+    code, out, err = cli("replay", str(bad), "--rerun-with", flown, "--json")
+    assert code == 0 and json.loads(out)[0]["rerun"]["periods"] == expected(log).periods, err
+    counts = _recovered(cli, tmp_path, bad, expected(log))
+    assert counts["warnings"] == named and counts["dropped"] == {"chunks": 0, "messages": 0, "by_reason": {
+        "metadata": {"chunks": 0, "messages": 0}}}
+    copy = tmp_path / "recovered.mcap"
+    assert _metadata_names(copy) == _metadata_names(log) - {"config"}
+    code, out, err = cli("replay", str(copy), "--json")
+    assert code == 0 and err == "" and json.loads(out)[0]["periods"] == expected(log).periods, err
+
+
+def _header_damaged(tmp_path: Path, how: str) -> Path:
+    log = flight_log()
+    start, end = leading_records(log)["header"]
+    data = bytearray(log.read_bytes())
+    if how == "length":
+        data[start + 1:start + 9] = (1 << 62).to_bytes(8, "little")
+    else:
+        data[start:end] = bytes(end - start)
+    bad = tmp_path / f"header_{how}.mcap"
+    bad.write_bytes(bytes(data))
+    return bad
+
+
+@process_fault("a flight log's header record with its length field damaged (2^62)",
+               "replay: every message read, one line naming the header as damaged, exit 0; log recover: every "
+               "message and every metadata record copied")
+def f_log_header_length_damaged(cli, tmp_path):
+    """Before: replay said "not an MCAP file" (exit 2), though log recover salvaged every message."""
+    log = flight_log()
+    bad = _header_damaged(tmp_path, "length")
+    named = [f"bytes 8-{leading_records(log)['header'][1]}: the header record is damaged (its length field is "
+             f"wrong): skipped", totals(log)]
+    assert _said(cli, bad, expected(log)) == named
+    assert _recovered(cli, tmp_path, bad, expected(log))["warnings"] == named
+    assert _metadata_names(tmp_path / "recovered.mcap") == _metadata_names(log)
+
+
+@process_fault("a flight log's header record zeroed (it names the program that wrote the file)",
+               "replay: one line saying the file is damaged and that log recover may salvage it, exit 2; log "
+               "recover: every message copied, the copy replays")
+def f_log_header_zeroed(cli, tmp_path):
+    """Before: replay said "not an MCAP file"."""
+    bad = _header_damaged(tmp_path, "zeroed")
+    code, out, err = cli("replay", str(bad), "--json")
+    assert code == 2 and out == "" and err == (
+        f"groundstation: error: {bad}: damaged: an MCAP file whose header record (which names the program that "
+        f"wrote it) does not read; groundstation log recover may salvage its intact records into a new log\n"), err
+    want = expected(flight_log())
+    counts = _recovered(cli, tmp_path, bad, want)
+    assert counts["messages"] == total_messages(flight_log()) and counts["dropped"]["chunks"] == 0
+    code, out, err = cli("replay", str(tmp_path / "recovered.mcap"), "--json")
+    assert code == 0 and json.loads(out)[0]["periods"] == want.periods, err
+
+
+@process_fault("a flight log with every chunk damaged (one bit flipped in each)",
+               "replay: one line saying there is no control period because the log is damaged, with the chunks "
+               "and messages skipped, exit 2; log recover: nothing to recover, exit 1, no output file")
+def f_log_every_chunk_damaged(cli, tmp_path):
+    """Before: replay said only "the log has no control period to analyse"."""
+    log = flight_log()
+    bad = flipped(log, tmp_path / "every.mcap", [middle_of(c) for c in chunks_of(log)], mask=0x01)
+    code, out, err = cli("replay", str(bad), "--json")
+    chunks, messages = len(chunks_of(log)), total_messages(log)
+    assert code == 2 and out == "" and err == (
+        f"groundstation: error: {bad}: the log has no control period to analyse (the log is damaged: 1 damaged "
+        f"stretch: {chunks} chunks and {messages} messages skipped; 0 messages in 0 intact chunks read)\n"), err
+    out_file = tmp_path / "r.mcap"
+    code, stdout, err = cli("log", "recover", str(bad), str(out_file))
+    counts = json.loads(stdout)
+    assert code == 1 and counts["messages"] == 0 and not out_file.exists(), err
+    assert counts["dropped"] == {"chunks": chunks, "messages": messages, "by_reason": {
+        "crc": {"chunks": chunks, "messages": messages}}}
 
 
 @process_fault("log recover of a file with no intact message: an MCAP header alone, then garbage",

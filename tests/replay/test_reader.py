@@ -1,15 +1,27 @@
 """Replaying a damaged flight log: every control period of the intact chunks is analysed (counted independently,
 chunk by chunk, from the undamaged original), and what was skipped is said; a log of the records' older shape
-replays as it did."""
+replays as it did; a file that is no log is one line saying what it is."""
 
 from __future__ import annotations
 
 import csv
+import io
+import json
+import os
+import struct
+from pathlib import Path
 
+import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Metadata
+
+from groundstation.control.geometric import Gains
+from groundstation.errors import ConfigError
 from groundstation.replay.analysis import analyse
 from groundstation.replay.export import export_csv
-from groundstation.replay.reader import upgraded
-from tests.flightlog.damage import chunks_of, expected, flight_log, flipped, middle_of, spread
+from groundstation.replay.reader import open_log, upgraded
+from tests.flightlog.damage import chunks_of, expected, flight_log, flipped, middle_of, spread, total_messages
 from tests.replay.test_analysis import copy_log
 
 
@@ -91,3 +103,135 @@ def test_an_old_telemetry_record_in_todays_shape():
         {"rotor_speed_sq_rad2_s2": [0, 1, 2, 3], "battery_v": 3.9},
         {"rotor_speed_sq_rad2_s2": [4, 5, 6, 7], "battery_v": 4.0, "link_latency_s": 0.004, "link_loss_frac": 0.0}]}
     assert upgraded("/mocap/stats", {"received": 1}) == {"received": 1}
+
+
+# -- damage outside the chunks, which no chunk CRC covers -----------------------------------------------------------
+def leading_records(path: Path) -> dict[str, tuple[int, int]]:
+    """The byte ranges [start, end) of the records before a log's first chunk, read with the ``mcap`` package's
+    record reader: ``header``, then each metadata record by its name (``config``, ``config_path``, ...)."""
+    data = path.read_bytes()
+    out, pos = {}, 8
+    while data[pos] != Opcode.CHUNK:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        body = data[pos + 9:pos + 9 + length]
+        name = "header" if opcode == Opcode.HEADER else Metadata.read(ReadDataStream(io.BytesIO(body))).name
+        out[name] = (pos, pos + 9 + length)
+        pos += 9 + length
+    assert pos == chunks_of(path)[0].start
+    return out
+
+
+def config_bit_flipped(log: Path, dst: Path) -> tuple[Path, tuple[int, int]]:
+    """A copy of ``log`` with one bit of its config metadata's JSON flipped (the quote that opens ``"rate_hz"``
+    becomes a control character: still UTF-8, no longer JSON), and that record's byte range."""
+    start, end = leading_records(log)["config"]
+    at = log.read_bytes().index(b'"rate_hz"', start)
+    assert at < end
+    return flipped(log, dst, [at], mask=0x20), (start, end)
+
+
+def totals(log: Path, chunks: int | None = None, messages: int = 0, stretches: int = 1) -> str:
+    """The line of totals of a log of which ``messages`` and every chunk but ``chunks`` were skipped."""
+    read = total_messages(log) - messages
+    kept = len(chunks_of(log)) - (chunks or 0)
+    return (f"{stretches} damaged stretch{'es' * (stretches != 1)}: {chunks or 0} chunk{'s' * ((chunks or 0) != 1)} "
+            f"and {messages} message{'s' * (messages != 1)} skipped; {read} messages in {kept} intact chunks read")
+
+
+def test_a_flipped_bit_in_the_config_metadata_costs_the_config_alone(tmp_path):
+    """One bit flipped in the config metadata's JSON (no CRC covers that record alone): the record is skipped and
+    named, every message read; the config is empty, the other metadata intact; a re-run says it cannot get the
+    gains, unless they are given. Before: "config: the log's config metadata is not JSON", exit 2, nothing read."""
+    log = flight_log()
+    bad, (start, end) = config_bit_flipped(log, tmp_path / "config.mcap")
+    whole = analyse(log)
+    r = analyse(bad, rerun=True)
+    assert r.metrics == whole.metrics and r.timeline == whole.timeline and r.events == whole.events
+    assert r.metrics.periods == expected(log).periods and not r.complete
+    assert r.warnings == (f"bytes {start}-{end}: the config metadata record is damaged (its value is not JSON): "
+                          f"skipped", totals(log),
+                          "not re-run: the log has no intact config metadata (its record skipped as damaged, or "
+                          "never written): the gains and allocation it flew with are unknown; --rerun-with "
+                          "FLIGHT.toml gives them")
+    assert r.rerun is None and r.metadata["config"] == {}
+    assert {k: v for k, v in r.metadata.items() if k != "config"} == {k: v for k, v in whole.metadata.items()
+                                                                      if k != "config"}
+    gains = Gains(**whole.metadata["config"]["gains"])
+    again = analyse(bad, rerun=True, gains=gains, allocation=whole.metadata["config"]["allocation"])
+    assert again.rerun == analyse(log, rerun=True).rerun and again.rerun.periods == whole.metrics.periods
+    assert again.warnings == r.warnings[:2]
+
+
+def test_a_metadata_record_that_does_not_parse_is_skipped_alone(tmp_path):
+    """A byte of the config's value that is not UTF-8: the record does not parse, its length still holds and a
+    sound record follows it, so only it is skipped; before, reading resumed at the first chunk and every metadata
+    record after it (the assembly, the code version) was lost with it."""
+    log = flight_log()
+    start, end = leading_records(log)["config"]
+    bad = flipped(log, tmp_path / "utf8.mcap", [log.read_bytes().index(b'{"', start + 9)])  # '{' -> 0x84
+    r = analyse(bad)
+    assert r.warnings == (f"bytes {start}-{end}: the config metadata record is damaged (it does not parse): skipped",
+                          totals(log))
+    assert r.metrics.periods == expected(log).periods and r.metadata["assembly"] == analyse(log).metadata["assembly"]
+
+
+def test_a_damaged_header_length_is_read_past(tmp_path):
+    """The header record's length field damaged (2^62): its content (which names the writer) still reads and a
+    metadata record follows where it ends, so the log replays whole with the header named. Before: "not an MCAP
+    file", exit 2, though ``log recover`` salvaged every message."""
+    log = flight_log()
+    start, end = leading_records(log)["header"]
+    data = bytearray(log.read_bytes())
+    struct.pack_into("<Q", data, start + 1, 1 << 62)
+    bad = tmp_path / "header.mcap"
+    bad.write_bytes(bytes(data))
+    r = analyse(bad)
+    assert r.warnings == (f"bytes {start}-{end}: the header record is damaged (its length field is wrong): skipped",
+                          totals(log))
+    assert r.metrics == analyse(log).metrics and r.metadata == analyse(log).metadata and not r.complete
+
+
+def test_a_header_that_does_not_read_is_damage_that_log_recover_may_salvage(tmp_path):
+    log = flight_log()
+    start, end = leading_records(log)["header"]
+    data = bytearray(log.read_bytes())
+    data[start:end] = bytes(end - start)
+    bad = tmp_path / "header.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ConfigError) as refused:
+        open_log(bad)
+    assert str(refused.value) == (f"{bad}: damaged: an MCAP file whose header record (which names the program that "
+                                  f"wrote it) does not read; groundstation log recover may salvage its intact "
+                                  f"records into a new log")
+
+
+def test_a_log_with_every_chunk_damaged_says_so(tmp_path):
+    """Nothing left to analyse: the error says it is for damage, and how much was skipped. Before: only "the log
+    has no control period to analyse"."""
+    log = flight_log()
+    bad = flipped(log, tmp_path / "every.mcap", [middle_of(c) for c in chunks_of(log)], mask=0x01)
+    assert expected(log, [middle_of(c) for c in chunks_of(log)], mask=0x01).chunks == 0
+    with pytest.raises(ConfigError) as refused:
+        analyse(bad)
+    assert str(refused.value) == (f"{bad}: the log has no control period to analyse (the log is damaged: "
+                                  f"{totals(log, len(chunks_of(log)), total_messages(log))})")
+
+
+@pytest.mark.parametrize("path, what", [
+    ("/dev/zero", "not a regular file (a character device), not an MCAP flight log"),
+    ("/dev/null", "not a regular file (a character device), not an MCAP flight log"),
+    ("fifo", "not a regular file (a FIFO), not an MCAP flight log"),
+    ("empty.mcap", "empty file, not an MCAP flight log"),
+    ("notes.mcap", "not an MCAP file"),
+    ("none.mcap", "file not found")])
+def test_a_file_that_is_no_log_says_what_it_is(tmp_path, path, what):
+    """Never opened unless a regular file (a FIFO would block, /dev/zero never end). Before: "file not found" for
+    /dev/zero and /dev/null."""
+    p = Path(path) if path.startswith("/") else tmp_path / path
+    if path == "fifo":
+        os.mkfifo(p)
+    elif path in ("empty.mcap", "notes.mcap"):
+        p.write_text("" if path == "empty.mcap" else json.dumps({"not": "a log"}))
+    with pytest.raises(ConfigError) as refused:
+        open_log(p)
+    assert str(refused.value) == f"{p}: {what}"
