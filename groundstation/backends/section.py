@@ -22,6 +22,9 @@ SIM_MOTOR_TIME_CONSTANT = 0.02
 """First-order lag of a simulated rotor, s."""
 SIM_GYRO_DELAY = 0.004
 """Age of a simulated module's gyro reading, s (a Crazyflie's IMU low-pass and sampling: a few ms)."""
+MAX_THRUST_LAG = 0.1
+"""Largest ``thrust_lag_s``, s: rotors slower than this cannot carry an attitude loop (``motor_time_constant`` is
+bounded by the attitude loop's own time constant: :func:`~groundstation.runtime.flight_config.bound_issues`)."""
 MAX_GYRO_DELAY = 0.1
 """Largest ``gyro_delay_s``, s: a body rate older than this is no use to an attitude loop."""
 
@@ -53,6 +56,9 @@ class LinkedSection:
     connection strings: ``/dev/ttyACM0,921600``, ``udpin:0.0.0.0:14550``, or ``udpout:127.0.0.1:14560``."""
     link_timeout_s: float = Field(0.1, gt=0)
     """A module silent for longer is lost (the flight stops the motors), s."""
+    thrust_lag_s: float = Field(SIM_MOTOR_TIME_CONSTANT, ge=0, le=MAX_THRUST_LAG)
+    """Time constant of the modules' rotors behind a thrust command, s (the estimator predicts with it): the
+    simulated modules' (``sim-peer``) 20 ms by default; a Crazyflie's brushed motors are of that order."""
     min_battery_v: float = Field(3.5, ge=0)
     """Preflight rejects a module below this battery voltage, V."""
     firmware_params: str | None = None

@@ -153,14 +153,23 @@ def _pieces(w: float, dist: float, cruise: float, end: float, accel: float) -> l
     return [(d, a) for d, a in pieces if d > 0.0]
 
 
+DESCENT_BLEND_S = 0.3
+"""How long a :class:`Descent` blends its start's acceleration into its first piece's, s."""
+
+
 @dataclass(frozen=True)
 class Descent:
     """A vertical descent flown without a height measurement (a blind landing): at up to ``cruise_mps`` while
-    higher than ``slow_m`` above the ground, then at ``touchdown_mps`` through it to ``depth_m`` below, changing
-    speed at ``accel_mps2`` (only the collective thrust changes: the attitude does not). Flown as the quintic of
-    a planned landing, at a mean of 0.5 m/s, the estimate's uncertainty grew past its bound from 1.6 m (it grows
-    with the time flown blind, to the 2.5th power), and the touchdown speed was the quintic's wherever the ground
-    cut it (0.6-0.8 m/s)."""
+    higher than ``slow_m`` above the ground, then at ``touchdown_mps`` to it, changing speed at ``accel_mps2``
+    (only the collective thrust changes: the attitude does not); past the ground it speeds up at ``press_mps2``,
+    to ``depth_m`` below and on (the flight ends it): a body already on the ground is pressed onto it by that
+    much less than its weight's thrust (at the weight's, a landed V rose 3.6 cm as the estimate's disturbance
+    allowed), one still above it touches down a little faster. It never stops itself: where the ground is, is
+    known only to the estimate's uncertainty, and a stop below an estimate that ran low stopped the body in the
+    air (the thrust cut to stop the estimate dropped the V from 0.15 m at 1.4 m/s); an estimate that ran high
+    asked a landed body for the thrust that stops it. Flown as the quintic of a planned landing, at a mean of
+    0.5 m/s, the estimate's uncertainty grew past its bound from 1.6 m (it grows with the time flown blind, to
+    the 2.5th power), and the touchdown speed was the quintic's wherever the ground cut it (0.6-0.8 m/s)."""
 
     z0: float
     """Start height, world, m."""
@@ -173,46 +182,66 @@ class Descent:
     slow_m: float
     depth_m: float
     accel_mps2: float
+    press_mps2: float
+    a0: float | None = None
+    """Start vertical acceleration, world (up), m/s^2 (None: the first piece's): that piece's is blended in from it over
+    :data:`DESCENT_BLEND_S` (a step of it steps the attitude target of an assembly moving sideways: a blind landing
+    begun in a figure-8 stepped it by 0.64 deg in a period)."""
 
     @cached_property
     def _segments(self) -> tuple[tuple[float, float, float, float], ...]:
         """(start s, start height m, start velocity m/s, acceleration m/s^2), world up."""
         u, a, slow = -self.v0, self.accel_mps2, self.touchdown_mps  # downwards
-        to_slow = self.z0 - (self.ground_z + self.slow_m)
-        to_end = self.z0 - (self.ground_z - self.depth_m)
+        # Climbing (a take-off cut short): the climb stops at twice the rate (the take-off's own quintic brakes
+        # harder), then the descent starts from rest: at the rate alone, from a 1 m take-off's 1.8 m/s, it climbed
+        # 1.1 m more.
+        climb = [(-u / (2.0 * a), 2.0 * a)] if u < 0.0 else []
+        top = self.z0 + (u * u / (4.0 * a) if climb else 0.0)
+        u = max(u, 0.0)
+        to_slow = top - (self.ground_z + self.slow_m)
         # Faster down to slow_m if there is room to reach the touchdown speed by then at accel; else at that speed
         # at most all the way (braking harder only where the whole way forces it: from just above slow_m at 1 m/s,
         # braking to the touchdown speed by slow_m asked 100-400 m/s^2).
         fast = _pieces(u, to_slow, self.cruise_mps, slow, a) if to_slow > abs(slow * slow - u * u) / (2.0 * a) \
             else None
-        if fast:
-            last = _pieces(slow, self.slow_m + self.depth_m, slow, 0.0, a)
-        else:  # below its end already (no way down): it stops where it is
-            last = _pieces(u, to_end, slow, 0.0, a) or [(abs(u) / a, math.copysign(a, -u))]
+        last = [(self.slow_m / slow, 0.0)] if fast else (_pieces(u, top - self.ground_z, slow, slow, a) or [])
         segments, t, z, v = [], 0.0, self.z0, self.v0
-        for d, acc in (fast or []) + last:
+        for d, acc in climb + (fast or []) + last:
             if d <= 1e-9:
                 continue
             segments.append((t, z, v, -acc))
             z, v, t = z + v * d - 0.5 * acc * d * d, v - acc * d, t + d
-        segments.append((t, z, 0.0, 0.0))
+        segments.append((t, z, v, -self.press_mps2))  # from the ground on
         return tuple(segments)
 
-    @property
+    @cached_property
     def duration(self) -> float:
-        """Until it stops below the ground, s."""
-        return self._segments[-1][0]
+        """Until it is ``depth_m`` below the ground, s."""
+        t, z, v, a = self._segments[-1]
+        below = z - (self.ground_z - self.depth_m)  # to go from the last piece's start (on or below the ground)
+        if below <= 0.0:
+            return t
+        return t + (v + math.sqrt(v * v + 2.0 * -a * below)) / -a if a < 0.0 else t + below / -v
 
     @property
     def end_z(self) -> float:
-        """Where it stops, world, m."""
-        return self._segments[-1][1]
+        """Where it is then, world, m."""
+        return self(self.duration)[0]
 
     def __call__(self, t: float) -> tuple[float, float, float]:
         """Height (m), vertical velocity (m/s) and acceleration (m/s^2) at ``t`` s, world up."""
         t0, z, v, a = next(p for p in reversed(self._segments) if p[0] <= t) if t > 0.0 else self._segments[0]
         dt = max(0.0, t - t0)
-        return z + v * dt + 0.5 * a * dt * dt, v + a * dt, a
+        z, v, a = z + v * dt + 0.5 * a * dt * dt, v + a * dt, a
+        if self.a0 is not None and 0.0 <= t < DESCENT_BLEND_S:
+            # + (a0 - the first piece's) g(t), g = t^2 / 2 (1 - t / T)^3: g, g' and g'' are 0, 0, 1 at the start and
+            # 0, 0, 0 at T (position and velocity untouched at both ends)
+            da, s = self.a0 - self._segments[0][3], t / DESCENT_BLEND_S
+            r = 1.0 - s
+            z += da * 0.5 * t * t * r ** 3
+            v += da * (t * r ** 3 - 1.5 * s * t * r * r)
+            a += da * (r ** 3 - 6.0 * s * r * r + 3.0 * s * s * r)
+        return z, v, a
 
 
 @dataclass(frozen=True)

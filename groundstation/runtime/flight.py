@@ -359,10 +359,20 @@ what a blind landing can spare. It then slows to ``failsafe.blind_descent_mps`` 
 BLIND_SLOW_M = 0.5
 """...m (see :data:`MAX_HEIGHT_SIGMA_M`)."""
 BLIND_ACCEL_MPS2 = 1.5
-"""...changing its descent speed at this, m/s^2 (the thrust 15 % above or below the weight; no tilt)."""
+"""...changing its descent speed at this, m/s^2 (the thrust 15 % above or below the weight; no tilt)..."""
+BLIND_PRESS_MPS2 = 0.5
+"""...and past the ground speeding up at this, m/s^2 (the thrust 5 % below the weight: ten times the disturbance
+a nominal flight's estimate carries), on to twice its height's std below it: a body still above the ground by that
+touches down at 0.9 m/s."""
 MAX_HEIGHT_SIGMA_M = BLIND_SLOW_M / 1.5
 """The largest ``failsafe.max_height_sigma_m``, m: a blind estimate 1.5 of its std too high still slows before the
 ground; beyond, it may meet the ground at :data:`BLIND_CRUISE_MPS`."""
+STEADY_DISTURBANCE_S = 0.5
+"""The disturbance a blind flight flies on is the estimator's averaged over this long (exponentially) in steady
+flight, s: there it is the model's error (a payload, a thrust map off); in a take-off or a landing mostly the rotors'
+lag behind the commanded thrust, which a blind flight must not carry on with."""
+STEADY_DISTURBANCE_NOTED = 0.1
+"""...and the flight says so when the two differ by more than this on an axis, m/s^2."""
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
@@ -448,6 +458,10 @@ class Flight:
         """Poses taken back when the stream turned untrusted, not yet named in an event."""
         self._attitude_seen_t = -math.inf
         """Capture time of the newest pose whose attitude the estimator compared, s."""
+        self._steady_disturbance = np.zeros(3)
+        """The estimator's disturbance averaged over steady flight, world, m/s^2 (zero before any)."""
+        self._steady_t: float | None = None
+        """Flight time of the last period averaged into it, s (None before the first)."""
         self._disputes = 0
         """Poses in a row, to the newest compared, whose attitude was more than :data:`GYROS_DISPUTED_RAD` off."""
         self._disputed_on_the_ground = 0.0
@@ -558,6 +572,7 @@ class Flight:
         does not jump; a blind landing's vertical acceleration steps, which changes the collective thrust alone)
         unless the assembly is farther from it than ``max_tracking_error_m``, then from the ``state`` (where and
         how it moves). A landing already under way goes on from its own reference (a blind one stays blind)."""
+        was_blind = False
         if self._landing is not None:
             t_land, landing, was_blind = self._landing
             ref, blind = landing(t - t_land), blind or was_blind
@@ -570,10 +585,12 @@ class Flight:
         start = tuple(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration))
         ground = float(self.plan.ground[2])
         if blind:
-            self.estimator.set_ground(ground)
+            if not was_blind:
+                self._fly_on_steady_disturbance(t)
             landing = Landing.blind(*start, Descent(start[0][2], start[1][2], ground, BLIND_CRUISE_MPS,
                                                     self.policy.blind_descent_mps, BLIND_SLOW_M,
-                                                    BLIND_LANDING_DEPTH, BLIND_ACCEL_MPS2))
+                                                    BLIND_LANDING_DEPTH, BLIND_ACCEL_MPS2, BLIND_PRESS_MPS2,
+                                                    start[2][2]))
         else:
             z = ground - LANDING_DEPTH
             height, sinking = float(ref.position[2]) - z, -float(ref.velocity[2])
@@ -586,6 +603,40 @@ class Flight:
         self._landing = (t, landing, blind)
         self.reason = self.reason or why
         self._set_phase(t, Phase.LANDING, why)
+
+    def _blind_landing_done(self, t: float) -> bool:
+        """A blind landing ends once its reference is twice its height's std (at most ``max_height_sigma_m``'s)
+        below the ground's depth: it touches down on the way there at ``blind_descent_mps``, wherever the ground
+        really is within that."""
+        sigma = self.estimator.estimate().height_sigma
+        sigma = min(sigma, self.policy.max_height_sigma_m) if math.isfinite(sigma) else self.policy.max_height_sigma_m
+        end = float(self.plan.ground[2]) - BLIND_LANDING_DEPTH - 2.0 * sigma
+        return float(self._landing_reference(t).position[2]) <= end
+
+    def _fly_on_steady_disturbance(self, t: float) -> None:
+        """Going blind: the estimator flies on the disturbance learnt in steady flight (settle, track, hold), zero
+        before any, not on the one of the moment (:meth:`RigidBodyFilter.set_disturbance`)."""
+        now = self.estimator.disturbance_vector
+        steady = tuple(self._steady_disturbance)
+        if max(abs(a - b) for a, b in zip(now, steady, strict=True)) > STEADY_DISTURBANCE_NOTED:
+            self._event(t, "info", f"flying blind on the disturbance of steady flight, "
+                                   f"{np.round(steady, 2).tolist()} m/s^2, not the last learnt, "
+                                   f"{np.round(now, 2).tolist()} m/s^2")
+        self.estimator.set_disturbance(steady)
+
+    def _learn_steady_disturbance(self, t: float, age: float) -> None:
+        """Average the estimator's disturbance over steady flight on fresh poses (:data:`STEADY_DISTURBANCE_S`;
+        ``age``: of the newest pose fused, s)."""
+        if self.phase not in (Phase.SETTLE, Phase.TRACK, Phase.HOLD) or self.estimator.fault() or \
+                self._poses_untrusted or age > self.policy.mocap_timeout_s:
+            return
+        d = np.array(self.estimator.disturbance_vector)
+        if self._steady_t is None:
+            self._steady_disturbance = d
+        else:
+            self._steady_disturbance += (d - self._steady_disturbance) * min(1.0, (t - self._steady_t) /
+                                                                           STEADY_DISTURBANCE_S)
+        self._steady_t = t
 
     # -- one period -----------------------------------------------------------------------------------------------
     def _stalled(self, t: float) -> bool:
@@ -618,6 +669,7 @@ class Flight:
         telemetry = self.backend.telemetry()
         est = self.estimator
         state, age = self._estimate(telemetry)
+        self._learn_steady_disturbance(t, age)
         if any(telemetry.module_faults):
             if not self._on_module_fault(t, state, telemetry):
                 return False
@@ -680,21 +732,26 @@ class Flight:
             for sigma, bound, which in ((e.height_sigma, self.policy.max_height_sigma_m, "height"),
                                         (e.position_sigma, self.policy.max_position_sigma_m, "position"),
                                         (e.attitude_sigma, MAX_UNSEEN_ATTITUDE_SIGMA, "attitude")):
-                if sigma <= bound:
+                below = self._landing_reference(t).position[2] < float(self.plan.ground[2])
+                if sigma <= bound or (which == "height" and below and math.isfinite(sigma)):  # on to the end
                     continue
                 if which == "attitude":
                     why = (f"{why}, nothing observes the attitude: its uncertainty {math.degrees(sigma):.0f} deg > "
                            f"{math.degrees(bound):.0f} deg")
                 else:
                     why = f"{why}: the {which} estimate's uncertainty {sigma:.2f} m > {bound:g} m"
-                if self._landing_reference(t).position[2] < float(self.plan.ground[2]):
+                if below:
                     # The descent is done but for its margin below the ground: the end the clock would give.
                     self._event(t, "warning", f"{why}, the landing's reference below the ground: it ends here")
                     self._landed_or_not(t, state)
                 else:
                     self._emergency(t, why)
                 return False
-        if np.any(state.position < self._lo) or np.any(state.position > self._hi):
+        # A blind landing's estimate goes on below the ground (its descent does: the ground is where the body stops)
+        low = state.position < self._lo
+        if self._landing is not None and self._landing[2]:
+            low[2] = False
+        if np.any(low) or np.any(state.position > self._hi):
             self._emergency(t, f"left the geofence at {np.round(state.position, 2).tolist()}")
             return False
         if state.rotation[2, 2] < self._cos_tilt:
@@ -720,8 +777,8 @@ class Flight:
             if self.policy.on_log_failure == "land" and self.phase.airborne:
                 self._begin_landing(t, state, why)
         if self._landing is not None:
-            t_land, landing, _ = self._landing
-            if t - t_land >= landing.duration:
+            t_land, landing, blind = self._landing
+            if t - t_land >= landing.duration and (not blind or self._blind_landing_done(t)):
                 self._landed_or_not(t, state)
                 return False
             reference = self._landing_reference

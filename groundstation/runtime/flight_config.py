@@ -345,7 +345,9 @@ def estimator_settings(cfg: FlightConfig) -> EstimatorSettings:
     m = cfg.mocap
     return EstimatorSettings(position_noise=max(m.position_noise, MIN_POSITION_NOISE),
                              attitude_noise=math.radians(max(m.attitude_noise_deg, MIN_ATTITUDE_NOISE_DEG)),
-                             gyro_delay=cfg.backend.gyro_delay_s)
+                             gyro_delay=cfg.backend.gyro_delay_s,
+                             thrust_lag=cfg.backend.motor_time_constant if isinstance(cfg.backend, SimSection)
+                             else cfg.backend.thrust_lag_s)
 
 
 def mocap_mac_key(m: MocapSection, base: Path, src: str):

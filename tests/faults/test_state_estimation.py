@@ -153,6 +153,43 @@ def f_mocap_lost_2m_up(cli, tmp_path):
     assert (z[before] - z[down]) / (t_s[down] - t_s[before]) < 0.85  # touchdown speed, the physics' own: 0.72
 
 
+def _blind_from_the_takeoff(tmp_path, port: int, name: str, start: float, end: float) -> None:
+    """``faults.name`` from ``start`` to ``end`` s of a 1 s take-off to 1 m: a blind landing that stops the climb
+    and touches down on the ground, upright, under 0.85 m/s, 'landed blind'."""
+    faults = Faults()
+    log = tmp_path / f"{name}.mcap"
+    res = fly(config_with(tmp_path, endpoint=f"tcp/127.0.0.1:{port}"), duration=3.0, log_path=log, faults=faults,
+              on_period=lambda t: setattr(faults, name, start <= t < end))
+    assert res.phase == "done" and res.reason, res.reason
+    assert any(text.startswith("landing -> done: landed blind") for *_, text in res.events), res.events
+    truth = _truth(log)
+    ground = truth[0][2]
+    assert max(z for _, _, z, _ in truth) < ground + 1.3  # the climb stopped (to 2.9 m and motors off 2.85 m up)
+    _touched_down_upright(log)
+    t_s = np.array([t for t, *_ in truth])
+    z = np.array([z for _, _, z, _ in truth])
+    top = int(np.argmax(z))
+    down = top + int(np.flatnonzero(z[top:] < ground + 0.01)[0])
+    before = int(np.flatnonzero(t_s <= t_s[down] - 0.05)[-1])
+    assert (z[before] - z[down]) / (t_s[down] - t_s[before]) < 0.85  # touchdown speed, the physics' own
+
+
+@estimate_fault("mocap: no pose from 0.3 s into a 1 s take-off, for good (dry run)",
+                "a blind landing: the climb (1.8 m/s) stopped at 3 m/s^2, the disturbance of steady flight flown on "
+                "(zero before any: the take-off's is the rotors' lag), down to 15 cm + 2 height stds below the "
+                "ground; touches down upright under 0.85 m/s, 'landed blind', exit 1 (it climbed to 2.9 m and the "
+                "motors stopped 2.85 m up)")
+def f_mocap_lost_in_the_takeoff(cli, tmp_path):
+    _blind_from_the_takeoff(tmp_path, 7555, "mocap_paused", 0.3, 1e9)
+
+
+@estimate_fault("mocap: the pose frozen (freshly stamped) from 0.3 to 0.5 s of a 1 s take-off (dry run)",
+                "every pose rejected: a blind landing that fuses no pose again (frozen, swapped, forged or broken), "
+                "as when the poses stop; touches down upright under 0.85 m/s, exit 1 (motors off 2.4 m up)")
+def f_mocap_frozen_in_the_takeoff(cli, tmp_path):
+    _blind_from_the_takeoff(tmp_path, 7556, "mocap_frozen", 0.3, 0.5)
+
+
 def _bridge_restarted(tmp_path, port: int, keyed: bool):
     """A dry run whose mocap publisher stops in tracking and a new one (a new entity id, its sequence from 1) takes
     its place 1 s later, as a restarted bridge; (result, log, the last /mocap/stats)."""
