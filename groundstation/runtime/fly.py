@@ -551,7 +551,11 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
     if est.fault():  # latched: the flight would take off blind on an estimate its poses disown
         issues.append(f"mocap: {est.fault()}")
     if s is None:
-        issues.append(f"mocap does not see '{m.body}' on {p.key} via {m.endpoint}")
+        unseen = f"mocap does not see '{m.body}' on {p.key} via {m.endpoint}"
+        if sub.unauthenticated:  # a bridge with another key (or none): its samples arrive, and are never used
+            unseen += (f": {sub.unauthenticated} samples arrived but failed authentication against mocap.key_file "
+                       f"({m.key_file}): their publisher has another key, or none")
+        issues.append(unseen)
     else:
         if s.rotation[2, 2] < np.cos(np.radians(10)):
             issues.append("assembly is not level")

@@ -258,3 +258,33 @@ def test_shipped_flight_configs_load(path):
     assert (base / cfg.assembly).is_file()
     if getattr(cfg.backend, "firmware_params", None) is not None:  # sim sections have no such key
         assert (base / cfg.backend.firmware_params).is_file()
+
+
+def test_mocap_with_another_key_is_named_in_preflight(tmp_path):
+    """A bridge publishing with another key than mocap.key_file: its samples arrive and fail authentication. Before,
+    preflight said only that mocap "does not see" the body (while the subscriber counted 222 such samples)."""
+    import threading
+
+    from groundstation.errors import PreflightError
+    from groundstation.mocap.auth import load_key_file
+    from groundstation.mocap.bridge import run_bridge
+
+    ours, theirs = write_key_file(tmp_path / "ours.key"), write_key_file(tmp_path / "theirs.key")
+    endpoint = "tcp/127.0.0.1:7795"
+    stop = threading.Event()
+    bridge = threading.Thread(target=run_bridge, args=("mock", "", ["assembly"], endpoint),
+                              kwargs={"mock_bodies": "assembly(0,0,0.03,1,0,0,0)", "stop": stop,
+                                      "mac_key": load_key_file(theirs)})
+    bridge.start()
+    hardware = 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:19896", "udp://127.0.0.1:19897"]'  # nobody there
+    cfg = config_with(tmp_path, endpoint=endpoint, **{'kind = "sim"': hardware,
+                                                      "latency_s = 0.005": f'latency_s = 0.005\nkey_file = "{ours}"'})
+    try:
+        with pytest.raises(PreflightError) as exc:
+            fly(cfg, log_path=tmp_path / "x.mcap")
+    finally:
+        stop.set()
+        bridge.join(timeout=10)
+    text = str(exc.value)
+    assert f"mocap does not see 'assembly' on mocap/assembly/pose via {endpoint}: " in text, text
+    assert f"samples arrived but failed authentication against mocap.key_file ({ours})" in text, text
