@@ -74,10 +74,30 @@ def hover_problem(model: ControlModel, attitude: np.ndarray) -> str | None:
 
 
 def hover_check(model: ControlModel, plan: FlightPlan) -> None:
-    """Raise :class:`PreflightError` unless the assembly can produce its hover wrench within motor bounds."""
-    problem = hover_problem(model, plan.track.attitude.matrix)
-    if problem is not None:
+    """Raise :class:`PreflightError` unless the assembly can produce its hover wrench within motor bounds (held at
+    the plan's roll target: one it cannot hover at is named, with those it can)."""
+    att = plan.track.attitude
+    if att.pitch == 0.0 and att.yaw == 0.0:
+        issue = roll_hover_issue(model, float(np.degrees(att.roll)))
+        if issue is not None:
+            raise PreflightError(issue[1] if issue[0] == "assembly" else f"roll target {issue[1]}")
+    elif (problem := hover_problem(model, att.matrix)) is not None:
         raise PreflightError(problem)
+
+
+def roll_hover_issue(model: ControlModel, roll_deg: float) -> tuple[str, str] | None:
+    """``(key, problem)`` if the assembly cannot hover held at the roll target ``roll_deg`` (deg), else None: the
+    key is ``trajectory.roll_deg`` and the problem names the roll targets it hovers at if it hovers level, else
+    ``assembly``."""
+    problem = hover_problem(model, euler_zyx(np.radians(roll_deg), 0.0, 0.0))
+    if problem is None:
+        return None
+    if roll_deg == 0.0 or hover_problem(model, np.eye(3)) is not None:
+        return "assembly", problem
+    lo, hi = (np.floor(hover_roll_limit(model, sign) * 10.0) / 10.0 for sign in (-1.0, 1.0))
+    return ("trajectory.roll_deg", f"{roll_deg:g} deg: the assembly cannot hover held at it "
+                                   f"({problem.removeprefix('the assembly cannot hover: ')}); it hovers at roll "
+                                   f"targets from {-lo:.1f} to {hi:.1f} deg")
 
 
 def hover_roll_limit(model: ControlModel, sign: float, tolerance_deg: float = 0.1) -> float:

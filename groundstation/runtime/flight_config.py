@@ -239,7 +239,9 @@ MIN_BLIND_DESCENT_MPS = 0.2
 and the longest stale bound (``failsafe.mocap_timeout_s``, 0.5 s) passes before it begins: 3.0 s after the last pose,
 when the height's std reaches :data:`MIN_HEIGHT_SIGMA_M` (the toy V in the dry run: 0.10 m 2 s after the last pose,
 0.245 m after 3 s, 0.30 m after 3.3 s). A landing begun at that height reaches the ground before its estimate is
-too uncertain to land on; at 1e-12 m/s a mocap loss stopped the motors 0.55 m up."""
+too uncertain to land on; at 1e-12 m/s a mocap loss stopped the motors 0.55 m up. Checked with every floor at once
+(this, :data:`MIN_HEIGHT_SIGMA_M`, :data:`MIN_POSITION_SIGMA_M`, a stale bound of 0.5 s): mocap lost in a hover at
+0.5 m, the dry run landed blind."""
 MIN_HEIGHT_SIGMA_M = 0.25
 """Least ``failsafe.max_height_sigma_m``, m: with :data:`MIN_BLIND_DESCENT_MPS`, see there; below it the height's
 bound stops a blind landing before it can reach the ground from 0.5 m (at 1e-12: wherever mocap is lost)."""
@@ -445,7 +447,7 @@ def bound_issues(cfg: FlightConfig, inertia, model=None) -> Iterator[tuple[str, 
     * ``trajectory.roll_deg``: below ``failsafe.max_tilt_deg``, or the target itself trips the tilt failsafe; with
       the controller's lean limit (``gains.max_tilt_deg``: a shove, a reference far off) below it too, and
       ``failsafe.max_tilt_deg`` above that limit, or the failsafe stops an assembly doing as it is told; one the
-      assembly hovers at (with ``model``: :func:`~groundstation.runtime.closed_loop.hover_problem`);
+      assembly hovers at (with ``model``: :func:`~groundstation.runtime.closed_loop.roll_hover_issue`);
     * ``failsafe.max_stall_s``: at least :data:`MIN_STALL_PERIODS` control periods;
       ``failsafe.max_link_latency_s``: at least that too, and below ``link_stop_latency_s`` (degraded, land,
       before too slow, stop);
@@ -514,7 +516,10 @@ def bound_issues(cfg: FlightConfig, inertia, model=None) -> Iterator[tuple[str, 
                                       f"{lean:g} deg tilts the assembly {abs(t.roll_deg) + lean:g} deg, not below "
                                       f"failsafe.max_tilt_deg = {f.max_tilt_deg:g} deg")
     elif model is not None:
-        yield from _hover_issues(model, t.roll_deg)
+        from groundstation.runtime.closed_loop import roll_hover_issue
+
+        if (issue := roll_hover_issue(model, t.roll_deg)) is not None:
+            yield issue
     floor = MIN_STALL_PERIODS * period
     for key in ("max_stall_s", "max_link_latency_s"):
         if getattr(f, key) < floor:
@@ -527,24 +532,6 @@ def bound_issues(cfg: FlightConfig, inertia, model=None) -> Iterator[tuple[str, 
     if f.max_tracking_error_m >= diagonal:
         yield ("failsafe.max_tracking_error_m", f"{f.max_tracking_error_m:g} m is not below the geofence's diagonal "
                                                 f"({diagonal:.3g} m): it could never fire inside the fence")
-
-
-def _hover_issues(model, roll_deg: float) -> Iterator[tuple[str, str]]:
-    """The roll target's hover (:func:`bound_issues`): the roll key if the assembly hovers level, else the
-    assembly's."""
-    from groundstation.control.trajectory import euler_zyx
-    from groundstation.runtime.closed_loop import hover_problem, hover_roll_limit
-
-    problem = hover_problem(model, euler_zyx(math.radians(roll_deg), 0.0, 0.0))
-    if problem is None:
-        return
-    if roll_deg == 0.0 or hover_problem(model, euler_zyx(0.0, 0.0, 0.0)) is not None:
-        yield "assembly", problem
-        return
-    lo, hi = (math.floor(hover_roll_limit(model, sign) * 10.0) / 10.0 for sign in (-1.0, 1.0))
-    yield ("trajectory.roll_deg", f"{roll_deg:g} deg: the assembly cannot hover held at it "
-                                  f"({problem.removeprefix('the assembly cannot hover: ')}); it hovers at roll "
-                                  f"targets from {-lo:.1f} to {hi:.1f} deg")
 
 
 def read_assembly(path: Path):

@@ -64,3 +64,16 @@ def test_paper_vi_a_circle_with_identity_attitude():
     m = rec.metrics
     assert not m.crashed and m.max_orientation_error_deg < 3.0
     assert m.pos_rmse_m < 0.02
+
+
+def test_a_roll_target_it_cannot_hover_at_is_named_with_those_it_can():
+    """``simulate --roll 20``: the V hovers within 9 deg of level; before, "the assembly cannot hover" named no roll."""
+    from groundstation.control.model import ControlModel
+    from groundstation.runtime.closed_loop import hover_check
+
+    asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+    model = ControlModel.from_assembly(asm)
+    hover_check(model, FlightPlan((0, 0, 0.03), Hover((0, 0, 1), 2.0, Attitude(roll=np.radians(-8.9)))))
+    with pytest.raises(PreflightError, match=r"^roll target 20 deg: the assembly cannot hover held at it \(best hover "
+                                             r"wrench misses by .*\); it hovers at roll targets from -9.0 to 9.0 deg$"):
+        hover_check(model, FlightPlan((0, 0, 0.03), Hover((0, 0, 1), 2.0, Attitude(roll=np.radians(20.0)))))
