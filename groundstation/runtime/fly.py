@@ -85,7 +85,7 @@ from groundstation.runtime.flight_config import (
 from groundstation.runtime.loop import SPIN_RT_S, SPIN_S, LoopStats, WallClock, realtime_priority
 from groundstation.runtime.metrics import FlightMetrics, FlightSummary
 from groundstation.runtime.placement import placement_issues
-from groundstation.runtime.signals import LANDING_SIGNALS, NEVER_A_STOP, TOOL_SIGNALS
+from groundstation.runtime.signals import LANDING_SIGNALS, NEVER_A_STOP, TOOL_SIGNALS, signal_name
 from groundstation.runtime.terminal import forget_lost_terminal
 
 PREFLIGHT_TIMEOUT_S = 3.0
@@ -639,7 +639,7 @@ def _install_signals(requests: Requests, started: threading.Event):
         # A landing a tool's signal or a hang-up began was not the operator's first request: their first Ctrl-C
         # only lands (a Ctrl-C after the hang-up stopped the motors 0.8 m up).
         not_asked = requests.source in TOOL_SIGNALS or requests.source == "SIGHUP"
-        requests.source = signal.Signals(signum).name
+        requests.source = signal_name(signum)
         if requests.land.is_set() and signum != signal.SIGHUP and not not_asked:
             requests.stop.set()
             if not started.is_set():

@@ -253,6 +253,15 @@ def f_sigusr1_twice_then_ctrl_c_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, signals, 7674, signal.SIGUSR1), signal.SIGUSR1)
 
 
+@process_fault("SIGXCPU in flight (the CPU-time limit: ulimit -t, systemd's LimitCPU=), then SIGPWR (a UPS's power "
+               "failure) and a real-time signal, 0.3 s apart",
+               "a landing (by default each ends the process and the assembly falls: 0.94 m up, no summary, in a "
+               "hostile check), never a stop; the log finalized with operator land (SIGXCPU); exit 0")
+def f_sigxcpu_sigpwr_and_a_realtime_signal_in_flight(cli, tmp_path):
+    signals = [signal.SIGXCPU, signal.SIGPWR, signal.SIGRTMIN + 3]
+    _landed(*_signalled_in_flight(cli, tmp_path, signals, 7677, signal.SIGXCPU), signal.SIGXCPU)
+
+
 @process_fault("fly --json with its stdout on a full device (/dev/full)",
                "the flight flies and lands as planned; one line on stderr says the summary could not be printed and "
                "where the log is; exit 0")
