@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--key", default="mocap/assembly/pose")
     ap.add_argument("--mode", required=True,
                     choices=("second", "huge-seq", "replay", "drift", "spoof", "malformed", "copy-id", "nan-stamp",
-                             "future-stamp", "replay-captured", "sink"))
+                             "future-stamp", "replay-captured", "sink", "resync"))
     ap.add_argument("--after", type=float, default=5.0)
     ap.add_argument("--duration", type=float, default=10.0)
     a = ap.parse_args(argv)
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     spy = session.declare_subscriber(a.key, captured.append)
     try:
         time.sleep(a.after)
-        if a.mode in ("copy-id", "nan-stamp", "future-stamp", "replay-captured", "sink"):
+        if a.mode in ("copy-id", "nan-stamp", "future-stamp", "replay-captured", "sink", "resync"):
             return _as_the_genuine_source(session, a, captured)
         spy.undeclare()
         pub = PosePublisher(session, a.key)
@@ -100,6 +100,15 @@ def _as_the_genuine_source(session: zenoh.Session, a: argparse.Namespace, captur
         newest = captured[-1]
         seq = struct.unpack("<Qd", newest.attachment.to_bytes()[:16])[0] + 1
         now = time.time()
+        if a.mode == "resync":  # bursts of 5 consistent samples 1000 ahead in sequence, 3 cm low, 10 a second
+            pose = decode(newest.payload.to_bytes(), newest.attachment.to_bytes())
+            for j in range(5):
+                s = seq + 1000 * k + j
+                payload, att = encode(PoseSample(s, now - (4 - j) * 2e-4, pose.position - [0.0, 0.0, 0.03],
+                                                 pose.rotation))
+                raw.put(payload, attachment=att, source_info=zenoh.SourceInfo(source, s))
+            time.sleep(0.1)
+            continue
         if a.mode == "sink":  # the genuine pose, dragged down at 0.5 m/s: an estimate held low while airborne
             pose = decode(newest.payload.to_bytes(), newest.attachment.to_bytes())
             payload, att = encode(PoseSample(seq, now, pose.position - [0.0, 0.0, 0.005 * k], pose.rotation))

@@ -67,6 +67,20 @@ def f_mocap_copied_source_id_sinking(cli, tmp_path):
     assert speed < 1.2, speed  # 2.2 m/s with the forged lesson kept
 
 
+@lying_mocap("mocap: a publisher copying the genuine source id, sending bursts of 5 consistent samples 1000 ahead in "
+             "sequence, 3 cm low, 10 a second, mid-flight (no key)",
+             "each burst resynchronises the stream, and the genuine track going on beside it is a second sender: "
+             "named, a blind landing, upright on the ground, exit 1 (followed 50-82 times a flight, never named, "
+             "it flew on 3 cm low, 'done', exit 0)")
+def f_mocap_copied_source_id_resync_bursts(cli, tmp_path):
+    res, log = _hostile_flight(tmp_path, "resync")
+    stats = json.loads(_records(log, "/mocap/stats")[-1][1])
+    assert stats["resyncs"] >= 1 and stats["conflicts"] >= 3, stats
+    assert res.phase == "done" and res.reason.startswith("mocap fault: two sequences under one source id"), \
+        (res.phase, res.reason)
+    _touched_down_upright_within(log, 15.0)
+
+
 @lying_mocap("mocap: samples stamped NaN, infinite or negative under the copied source id, mid-flight",
              "counted as malformed, never used or logged; the flight completes")
 def f_mocap_nan_stamps(cli, tmp_path):
