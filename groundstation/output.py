@@ -8,11 +8,34 @@ reach the operator as a traceback. These wrap the writes of the commands' writer
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from groundstation.errors import UsageError
+
+
+def descriptor_open(fd: int) -> bool:
+    """Whether file descriptor ``fd`` is open."""
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
+
+
+def hold_standard_descriptors() -> None:
+    """Put /dev/null on each of descriptors 0-2 that is closed (``>&-``, ``2>&-``, ``0<&-``), for the process's life:
+    the next file opened would otherwise be given it, and what is written to stdout or stderr (a C library's
+    messages, the summary) would land in it (a flight's log). Python's ``sys.stdout`` and ``sys.stderr`` stay
+    None, so the commands still know there is nobody to tell."""
+    for fd in (0, 1, 2):
+        if not descriptor_open(fd):
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
 
 
 @contextmanager

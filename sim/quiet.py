@@ -7,13 +7,7 @@ import os
 import sys
 from contextlib import contextmanager
 
-
-def _fd_open(fd: int) -> bool:
-    try:
-        os.fstat(fd)
-    except OSError:
-        return False
-    return True
+from groundstation.output import descriptor_open
 
 
 @contextmanager
@@ -23,7 +17,7 @@ def quiet_stderr():
     later (a flight's log) would otherwise be given descriptor 2, and a C library's messages written into it."""
     if sys.stderr is not None:
         sys.stderr.flush()
-    if not _fd_open(2):
+    if not descriptor_open(2):
         devnull = os.open(os.devnull, os.O_WRONLY)
         if devnull != 2:
             os.dup2(devnull, 2)

@@ -1,11 +1,16 @@
 """A write that fails part way (a full disk) is one line naming the file, and a figure is closed all the same."""
 
+import os
+import subprocess
+import sys
+
 import pytest
 
 from groundstation.design.figures import plot_costs
 from groundstation.errors import UsageError
 from groundstation.output import writing
 from tests.disks import full
+from tests.peers import ROOT
 
 
 def test_a_full_disk_is_a_usage_error_naming_the_file(tmp_path):
@@ -23,3 +28,33 @@ def test_a_figure_on_a_full_disk_is_closed(tmp_path):
         plot_costs(rows, 2, full(tmp_path / "fig5.png"))
     assert plt.get_fignums() == []
     assert plot_costs(rows, 2, tmp_path / "ok.png").stat().st_size > 1000
+
+
+def test_closed_standard_descriptors_are_held_on_dev_null(tmp_path):
+    """With descriptors 1 and 2 closed (``>&- 2>&-``), the next file opened takes descriptor 1 and what the process
+    prints lands in it; held on /dev/null first, a file opened after gets another descriptor and stays clean."""
+    script = (
+        "import os, sys\n"
+        "from groundstation.output import hold_standard_descriptors\n"
+        "if sys.argv[1] == 'hold':\n"
+        "    hold_standard_descriptors()\n"
+        "fd = os.open(sys.argv[2], os.O_WRONLY | os.O_CREAT)\n"
+        "os.write(1, b'summary')\n"
+        "null = os.stat(os.devnull).st_rdev == os.fstat(1).st_rdev\n"
+        "os.close(fd)\n"
+        "print(fd, null, file=open(sys.argv[3], 'w'))\n"
+    )
+
+    def closed():
+        os.close(1)
+        os.close(2)
+
+    for mode in ("bare", "hold"):
+        log, report = tmp_path / f"{mode}.log", tmp_path / f"{mode}.txt"
+        subprocess.run([sys.executable, "-c", script, mode, str(log), str(report)], cwd=ROOT, preexec_fn=closed,
+                       check=True, timeout=60)
+        fd, null = report.read_text().split()
+        if mode == "bare":
+            assert (fd, log.read_bytes()) == ("1", b"summary")  # what the process printed, in the file
+        else:
+            assert int(fd) > 2 and null == "True" and log.read_bytes() == b""

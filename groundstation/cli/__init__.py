@@ -24,6 +24,7 @@ from groundstation.cli.params_cmd import params_command
 from groundstation.cli.replay_cmd import replay_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import BackendError, GroundstationError
+from groundstation.output import hold_standard_descriptors
 from groundstation.runtime.signals import LANDING_SIGNALS
 
 EXIT_FAILED = 1
@@ -52,6 +53,8 @@ cli.add_command(replay_command)
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of ``groundstation`` and ``python -m groundstation``."""
+    if argv is None:
+        hold_standard_descriptors()
     # cflib logs every link problem as a warning with a traceback; our errors name the module and its link.
     logging.getLogger("cflib").setLevel(logging.ERROR)
     # A command may leave handlers for the process's end (``fly``: a signal after the flight ends the process with

@@ -84,6 +84,12 @@ def test_fly_with_stdout_closed_says_so_on_stderr(tmp_path):
                                 "--json", "--duration", "1"], (1,), tmp_path)
     assert code == 0 and "Traceback" not in err, err
     assert f"groundstation: cannot print the flight's summary (stdout is closed); it is in the log {log}\n" in err
+    # Descriptor 1 held on /dev/null: neither the log nor another file the process opens is given it (and what is
+    # written to it lands there)
+    with log.open("rb") as fh:
+        assert fh.read(8) == b"\x89MCAP0\r\n"
+    code, out, _ = _run_closed(["replay", str(log), "--json"], (), tmp_path)
+    assert code == 0 and json.loads(out)[0]["phase"] == "done", out  # one entry per log
 
 
 def test_fly_simulate_and_sim_peer_run_with_stderr_closed(tmp_path):
