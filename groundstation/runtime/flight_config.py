@@ -107,6 +107,13 @@ def _concrete_key(value: str, chunks: str) -> str:
     return value
 
 
+MIN_MOCAP_HZ = 50.0
+"""Slowest mocap the flight takes, Hz (simulated: ``mocap.rate_hz``; a real system's rate is its own): the estimator
+calls poses rejected for :attr:`~groundstation.estimation.filter.EstimatorSettings.inconsistent_s` (50 ms) on end a
+fault (a frozen, swapped or forged stream), and at 20 Hz one pose rejected was that: a healthy flight landed on
+"every pose rejected for 52 ms" (hostile campaign); at 5 Hz it went stale in the take-off."""
+
+
 @dataclass(frozen=True, config=_STRICT)
 class MocapSection:
     body: str = "assembly"
@@ -119,8 +126,9 @@ class MocapSection:
     listen: bool = False
     """The ground station listens on the endpoint (True) or connects to it (False, the default: the mocap
     bridge or the simulator listens)."""
-    rate_hz: float = Field(100.0, gt=0, le=1000)
-    """Simulated mocap only: publish rate, Hz (camera systems run at 100-360 Hz; above 1 kHz is a typo)."""
+    rate_hz: float = Field(100.0, ge=MIN_MOCAP_HZ, le=1000)
+    """Simulated mocap only: publish rate, Hz (camera systems run at 100-360 Hz; above 1 kHz is a typo; at least
+    :data:`MIN_MOCAP_HZ`)."""
     position_noise: float = Field(0.0005, ge=0, le=0.05)
     """The mocap's position noise std per axis, m: what the estimator assumes (at least
     :data:`MIN_POSITION_NOISE`) and what simulated mocap adds (at most 5 cm: a worse mocap is no mocap)."""

@@ -41,6 +41,8 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
      "trajectory.takeoff_s: Input should be a finite number"),
     ("blind_descent_1_mps", "failsafe.blind_descent_mps = 1 (a blind touchdown at 1 m/s)",
      {"max_tilt_deg = 75": "max_tilt_deg = 75\nblind_descent_mps = 1.0"}, "failsafe.blind_descent_mps"),
+    ("mocap_rate_20_hz", "mocap.rate_hz = 20 (one pose rejected was 50 ms of them: a healthy flight landed on 'every "
+     "pose rejected')", {"rate_hz = 100": "rate_hz = 20"}, "mocap.rate_hz"),
     ("height_sigma_1_m", "failsafe.max_height_sigma_m = 1 (a blind estimate that far high meets the ground at 1 m/s)",
      {"max_tilt_deg = 75": "max_tilt_deg = 75\nmax_height_sigma_m = 1.0"}, "failsafe.max_height_sigma_m"),
     ("position_gain_1e-9_hz", "position_hz = 1e-9", {"position_hz = 0.8": "position_hz = 1e-9"},
