@@ -170,7 +170,7 @@ def test_the_sim_loop_runs_at_the_slower_of_control_and_physics():
 
 @pytest.mark.parametrize("changes, key", [
     ({"mocap": {"latency_s": 0.3}}, "mocap.latency_s"),
-    ({"mocap": {"latency_s": 0.2, "rate_hz": 10.0}}, "mocap.latency_s"),  # 0.2 s + 0.1 s sample interval
+    ({"mocap": {"latency_s": 0.24, "rate_hz": 50.0}}, "mocap.latency_s"),  # 0.24 s + 0.02 s sample interval
     ({"trajectory": {"roll_deg": -75.0}}, "trajectory.roll_deg"),
     ({"trajectory": {"roll_deg": 45.0}}, "trajectory.roll_deg"),  # with the controller's 30 deg lean: 75 deg
     ({"failsafe": {"max_tilt_deg": 30.0}}, "failsafe.max_tilt_deg"),  # not above the controller's lean (30 deg)
