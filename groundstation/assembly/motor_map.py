@@ -39,6 +39,11 @@ from pydantic.dataclasses import dataclass
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
+MAX_ROTOR_THRUST_N = 100.0
+"""Most thrust one rotor of a module may give at full command, N (a Crazyflie's ~0.15 N, a Bolt-class frame's
+1-2 N; 1e300 was taken, and overflowed what was computed from it)."""
+MIN_BATTERY_V, MAX_BATTERY_V = 3.0, 51.0
+"""A module's LiPo, one cell empty to twelve full, V."""
 FULL_SCALE = 65535
 DEFAULT_IDLE_RATIO = 7000 / FULL_SCALE
 """``CONFIG_MOTORS_DEFAULT_IDLE_THRUST`` (7000) of builds that require arming, as a fraction of full scale."""
@@ -60,13 +65,13 @@ class MotorCommandMap:
     """The thrust -> normalized-force map of one module type (a ``[motor_command]`` table of a module file)."""
 
     platform: Literal["cf2", "cf21bl", "bolt"]
-    thrust_max_n: float | None = Field(None, gt=0)
+    thrust_max_n: float | None = Field(None, gt=0, le=MAX_ROTOR_THRUST_N)
     """cf2, cf21bl: the firmware build's ``THRUST_MAX``, thrust of one rotor at force 1.0, N."""
     thrust_poly_n: tuple[float, float, float] | None = None
     """bolt: ``(k0, k1, k2)`` of one rotor's thrust ``k0 + k1 x + k2 x^2``, N, at effective command x (ESC
     command r times battery voltage over ``reference_battery_v``)."""
-    reference_battery_v: float | None = Field(None, gt=0)
-    """bolt: battery voltage of the thrust-stand fit, V."""
+    reference_battery_v: float | None = Field(None, ge=MIN_BATTERY_V, le=MAX_BATTERY_V)
+    """bolt: battery voltage of the thrust-stand fit, V (a LiPo of 1 to 12 cells)."""
     battery_compensation: bool = True
     """bolt: scale the command by ``reference_battery_v / V`` with the module's reported voltage."""
     idle_ratio: float | None = Field(None, ge=0, lt=0.25)
@@ -85,6 +90,9 @@ class MotorCommandMap:
             # Increasing on [0, x] for every x the map meets (up to twice the reference voltage), zero at rest.
             if abs(k0) > 1e-9 or k1 < 0 or k1 + 4 * k2 < 0 or k1 + k2 <= 0:
                 raise ValueError("thrust_poly_n must start at 0 N and increase with the command")
+            if k1 + k2 > MAX_ROTOR_THRUST_N:
+                raise ValueError(f"thrust_poly_n gives {k1 + k2:g} N at full command: above the "
+                                 f"{MAX_ROTOR_THRUST_N:g} N of any rotor a module carries")
         return self
 
     # -- the firmware's side --------------------------------------------------------------------------------------

@@ -97,10 +97,6 @@ class MockBodies(click.ParamType):
         return ";".join(bodies)
 
 
-IP_PROTOCOLS = ("tcp", "tls", "udp", "quic")
-"""Zenoh endpoint protocols addressed by host and port."""
-
-
 class ListenEndpoint(click.ParamType):
     """A Zenoh endpoint to listen on: an IP one (``tcp/HOST:PORT``, ``tls``, ``udp``, ``quic``) on a port of 1-65535
     (0 listens on a port no one is told of; beyond 65535 Zenoh's own error names no option)."""
@@ -108,9 +104,9 @@ class ListenEndpoint(click.ParamType):
     name = "endpoint"
 
     def convert(self, value, param, ctx):
-        proto, _, address = value.partition("/")
-        if proto in IP_PROTOCOLS:
-            port = address.split("?")[0].split("#")[0].rpartition(":")[2]
-            if not port.isdigit() or not 1 <= int(port) <= 65535:
-                self.fail(f"{value}: the port must be 1-65535, not {port!r}", param, ctx)
+        from groundstation.runtime.flight_config import endpoint_port_problem
+
+        problem = endpoint_port_problem(value)
+        if problem:
+            self.fail(problem, param, ctx)
         return value

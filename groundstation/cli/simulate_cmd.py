@@ -165,7 +165,9 @@ def _checked(assembly: str, options: dict):
         cfg = config.validate(FlightConfig, options)
     except ConfigError as exc:
         raise UsageError(f"{option(exc.key)}: {str(exc).removeprefix(f'{exc.key}: ')}") from None
+    from groundstation.control.model import ControlModel
+
     asm = read_assembly(Path(assembly))
-    for key, problem in bound_issues(cfg, asm.inertia):
+    for key, problem in bound_issues(cfg, asm.inertia, ControlModel.from_assembly(asm)):
         raise UsageError(f"{option(key)}: {problem}")
     return cfg, asm

@@ -80,6 +80,21 @@ class TlsSection:
         return self
 
 
+IP_PROTOCOLS = ("tcp", "tls", "udp", "quic")
+"""Zenoh endpoint protocols addressed by host and port."""
+
+
+def endpoint_port_problem(endpoint: str) -> str:
+    """Why an IP Zenoh endpoint's port (``tcp/HOST:PORT``, ``tls``, ``udp``, ``quic``) is no port to use ("" if it
+    is): 1-65535 (0 listens on a port no one is told of; beyond 65535 Zenoh's own error names no option or key)."""
+    proto, _, address = endpoint.partition("/")
+    if proto in IP_PROTOCOLS:
+        port = address.split("?")[0].split("#")[0].rpartition(":")[2]
+        if not port.isdigit() or not 1 <= int(port) <= 65535:
+            return f"{endpoint}: the port must be 1-65535, not {port!r}"
+    return ""
+
+
 def _loopback(endpoint: str) -> bool:
     """A Zenoh endpoint (``proto/host:port``) on this machine only."""
     host = endpoint.split("/", 1)[-1].rsplit(":", 1)[0].strip("[]").lower()
@@ -165,6 +180,14 @@ class MocapSection:
     @classmethod
     def _prefix_concrete(cls, value: str) -> str:
         return _concrete_key(value, "many")
+
+    @field_validator("endpoint")
+    @classmethod
+    def _endpoint_port(cls, value: str) -> str:
+        problem = endpoint_port_problem(value)
+        if problem:
+            raise ValueError(problem)
+        return value
 
     @model_validator(mode="after")
     def _secure_endpoint(self) -> MocapSection:

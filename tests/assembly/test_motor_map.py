@@ -117,6 +117,9 @@ def test_paper_module_map_reaches_u_max_at_the_lowest_battery():
     ({"platform": "bolt", "thrust_poly_n": [0.1, 0, 1], "reference_battery_v": 4}, "start at 0 N"),
     ({"platform": "bolt", "thrust_poly_n": [0, 1, -1], "reference_battery_v": 4}, "increase"),
     ({"platform": "tinywhoop", "thrust_max_n": 1}, "platform"),
+    ({"platform": "cf2", "thrust_max_n": 1e300}, "thrust_max_n"),
+    ({"platform": "bolt", "thrust_poly_n": [0, 1e300, 0], "reference_battery_v": 4}, "above the 100 N"),
+    ({"platform": "bolt", "thrust_poly_n": [0, 1, 1], "reference_battery_v": 1e300}, "reference_battery_v"),
 ])
 def test_bad_maps_are_config_errors(table, message):
     with pytest.raises(ConfigError, match=message):

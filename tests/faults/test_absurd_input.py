@@ -41,6 +41,8 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
      "trajectory.takeoff_s: Input should be a finite number"),
     ("blind_descent_1_mps", "failsafe.blind_descent_mps = 1 (a blind touchdown at 1 m/s)",
      {"max_tilt_deg = 75": "max_tilt_deg = 75\nblind_descent_mps = 1.0"}, "failsafe.blind_descent_mps"),
+    ("mocap_endpoint_port_70000", "mocap.endpoint on port 70000 (Zenoh's own error named no key)",
+     {'endpoint = "tcp/127.0.0.1:7494"': 'endpoint = "tcp/127.0.0.1:70000"'}, "mocap.endpoint"),
     ("mocap_rate_20_hz", "mocap.rate_hz = 20 (one pose rejected was 50 ms of them: a healthy flight landed on 'every "
      "pose rejected')", {"rate_hz = 100": "rate_hz = 20"}, "mocap.rate_hz"),
     ("height_sigma_1_m", "failsafe.max_height_sigma_m = 1 (a blind estimate that far high meets the ground at 1 m/s)",
@@ -115,6 +117,8 @@ SIM_PEER = ("sim-peer", TOY_ASSEMBLY, "--duration", "0.2")
 BRIDGE = ("mocap-bridge", "--system", "mock", "--duration", "0.2")
 OPTIONS = [  # id, the command line, what stderr says
     ("simulate_roll_nan", ("simulate", TOY_ASSEMBLY, "--roll", "nan"), "'--roll': 'nan' is not a finite number"),
+    ("simulate_roll_20", ("simulate", TOY_ASSEMBLY, "--roll", "20"),
+     "--roll: 20 deg: the assembly cannot hover held at it"),
     ("simulate_duration_1e7", ("simulate", TOY_ASSEMBLY, "--duration", "1e7"),
      "--duration: Input should be less than or equal to 3600"),
     ("simulate_physics_1e9_hz", ("simulate", TOY_ASSEMBLY, "--physics-hz", "1e9"), "--physics-hz: 1e+09 Hz is above"),
