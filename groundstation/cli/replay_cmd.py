@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import math
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -97,6 +100,19 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
         if flown:
             plot_replays(flown, plot_path)
             click.echo(f"plot: {plot_path}", err=True)
+    try:
+        if sys.stdout is None:  # closed (>&-): click and rich would drop the figures without a word
+            raise OSError(errno.EBADF, "stdout is closed")
+        _print(replays, lags, as_json, t_from, t_to)
+    except OSError as exc:  # stdout on a full disk, closed, a pipe gone: one line, not a traceback
+        with contextlib.suppress(OSError):
+            click.echo(f"groundstation: cannot print the replay ({exc.strerror or exc})", err=True)
+        return 1
+    return 0
+
+
+def _print(replays, lags: dict, as_json: bool, t_from: float | None, t_to: float | None) -> None:
+    """The figures of ``replays`` on stdout: JSON, or a table with each log's timeline and warnings."""
     if as_json:
         objs = [json_safe({"log": str(r.path), "complete": r.complete, "warnings": list(r.warnings),
                            **asdict(r.metrics),
@@ -106,7 +122,7 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
                            **({"gyro_lag": asdict(lags[r.path]) | {"found": lags[r.path].found}} if lags else {})})
                 for r in replays]
         click.echo(json.dumps(objs))
-        return 0
+        return
     window = "" if t_from is None and t_to is None else \
         f", flight time {'start' if t_from is None else f'{t_from:g} s'} to {'end' if t_to is None else f'{t_to:g} s'}"
     table = Table(title="flight logs" + window)
@@ -135,4 +151,4 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
         for t, level, text in r.events:
             if level in ("warning", "error", "fatal"):
                 out.print(f"  [yellow]{t:8.2f} s {level}: {text}[/]")
-    return 0
+

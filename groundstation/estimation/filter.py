@@ -520,21 +520,9 @@ class RigidBodyFilter:
         return True
 
     def set_disturbance(self, d: Vec3) -> None:
-        """The disturbance is ``d`` (world, m/s^2), and was since the last pose fused: the position and velocity
-        (and the history kept since) are corrected by what the difference did since then, the model being linear
-        in it. For flying blind on a disturbance learnt where the model holds (steady flight): the one of a take-off
-        is mostly the rotors' lag behind the commanded thrust (a 1 s take-off swings it -0.5..+0.3 m/s^2), and flown
-        on blind from 0.3 s into one, -0.48 m/s^2 had the estimate descend at 0.5 m/s while the body climbed to
-        2.9 m."""
-        if self._t is None:
-            return
-        t0 = self.last_fused_t if math.isfinite(self.last_fused_t) else self._t
-        cd = (d[0] - self._d[0], d[1] - self._d[1], d[2] - self._d[2])
-        zero = (0.0, 0.0, 0.0)
-        for entry in self._history:
-            if entry[0] >= t0:
-                entry[1], entry[2], entry[3] = _corrected(entry[1], entry[2], entry[3], zero, zero, cd, entry[0] - t0)
-        self._p, self._v, self._d = _corrected(self._p, self._v, self._d, zero, zero, cd, max(0.0, self._t - t0))
+        """The disturbance is ``d`` from now on (world, m/s^2): the position and velocity go on from where they are
+        (no jump for the controller to chase)."""
+        self._d = tuple(d)
         self._state = None
 
     @property

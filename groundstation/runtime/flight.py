@@ -367,12 +367,13 @@ touches down at 0.9 m/s."""
 MAX_HEIGHT_SIGMA_M = BLIND_SLOW_M / 1.5
 """The largest ``failsafe.max_height_sigma_m``, m: a blind estimate 1.5 of its std too high still slows before the
 ground; beyond, it may meet the ground at :data:`BLIND_CRUISE_MPS`."""
-STEADY_DISTURBANCE_S = 0.5
-"""The disturbance a blind flight flies on is the estimator's averaged over this long (exponentially) in steady
-flight, s: there it is the model's error (a payload, a thrust map off); in a take-off or a landing mostly the rotors'
-lag behind the commanded thrust, which a blind flight must not carry on with."""
-STEADY_DISTURBANCE_NOTED = 0.1
-"""...and the flight says so when the two differ by more than this on an axis, m/s^2."""
+PRESS_HEIGHT_M = 0.05
+"""A landing whose estimate is this close above the ground (or below it) and whose newest pose is older than
+:data:`PRESS_STALE_S` (or blind) never pushes up (:meth:`Flight._pressed`), m..."""
+PRESS_STALE_S = 0.05
+"""...s: five samples at 100 Hz; the touchdown may have come unseen."""
+MODEL_DISTURBANCE_NOTED = 0.1
+"""Going blind in the take-off, the disturbance set aside is named when it exceeds this on an axis, m/s^2."""
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
@@ -458,10 +459,6 @@ class Flight:
         """Poses taken back when the stream turned untrusted, not yet named in an event."""
         self._attitude_seen_t = -math.inf
         """Capture time of the newest pose whose attitude the estimator compared, s."""
-        self._steady_disturbance = np.zeros(3)
-        """The estimator's disturbance averaged over steady flight, world, m/s^2 (zero before any)."""
-        self._steady_t: float | None = None
-        """Flight time of the last period averaged into it, s (None before the first)."""
         self._disputes = 0
         """Poses in a row, to the newest compared, whose attitude was more than :data:`GYROS_DISPUTED_RAD` off."""
         self._disputed_on_the_ground = 0.0
@@ -585,8 +582,8 @@ class Flight:
         start = tuple(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration))
         ground = float(self.plan.ground[2])
         if blind:
-            if not was_blind:
-                self._fly_on_steady_disturbance(t)
+            if not was_blind and self.phase == Phase.TAKEOFF:
+                self._fly_on_the_model(t)
             landing = Landing.blind(*start, Descent(start[0][2], start[1][2], ground, BLIND_CRUISE_MPS,
                                                     self.policy.blind_descent_mps, BLIND_SLOW_M,
                                                     BLIND_LANDING_DEPTH, BLIND_ACCEL_MPS2, BLIND_PRESS_MPS2,
@@ -613,30 +610,18 @@ class Flight:
         end = float(self.plan.ground[2]) - BLIND_LANDING_DEPTH - 2.0 * sigma
         return float(self._landing_reference(t).position[2]) <= end
 
-    def _fly_on_steady_disturbance(self, t: float) -> None:
-        """Going blind: the estimator flies on the disturbance learnt in steady flight (settle, track, hold), zero
-        before any, not on the one of the moment (:meth:`RigidBodyFilter.set_disturbance`)."""
-        now = self.estimator.disturbance_vector
-        steady = tuple(self._steady_disturbance)
-        if max(abs(a - b) for a, b in zip(now, steady, strict=True)) > STEADY_DISTURBANCE_NOTED:
-            self._event(t, "info", f"flying blind on the disturbance of steady flight, "
-                                   f"{np.round(steady, 2).tolist()} m/s^2, not the last learnt, "
-                                   f"{np.round(now, 2).tolist()} m/s^2")
-        self.estimator.set_disturbance(steady)
-
-    def _learn_steady_disturbance(self, t: float, age: float) -> None:
-        """Average the estimator's disturbance over steady flight on fresh poses (:data:`STEADY_DISTURBANCE_S`;
-        ``age``: of the newest pose fused, s)."""
-        if self.phase not in (Phase.SETTLE, Phase.TRACK, Phase.HOLD) or self.estimator.fault() or \
-                self._poses_untrusted or age > self.policy.mocap_timeout_s:
-            return
-        d = np.array(self.estimator.disturbance_vector)
-        if self._steady_t is None:
-            self._steady_disturbance = d
-        else:
-            self._steady_disturbance += (d - self._steady_disturbance) * min(1.0, (t - self._steady_t) /
-                                                                           STEADY_DISTURBANCE_S)
-        self._steady_t = t
+    def _fly_on_the_model(self, t: float) -> None:
+        """Going blind in the take-off: the estimator flies on from now on the model's own acceleration (no
+        disturbance, :meth:`RigidBodyFilter.set_disturbance`): a take-off's disturbance is mostly the rotors' lag
+        behind the command (-0.5..+0.3 m/s^2 in a 1 s take-off before the lag was modelled; -0.19 since), and
+        flown on blind from 0.3 s into one, -0.48 m/s^2 had the estimate descend at 0.5 m/s while the body climbed
+        to 2.9 m. Elsewhere the disturbance is kept: a push acting when the poses stop goes on acting (taken back to
+        the last pose fused, a push's disturbance made the estimate jump 26 cm, and the V climbed to 8 m)."""
+        d = self.estimator.disturbance_vector
+        if max(abs(x) for x in d) > MODEL_DISTURBANCE_NOTED:
+            self._event(t, "info", f"flying blind in the take-off on the model, not on the disturbance learnt, "
+                                   f"{np.round(d, 2).tolist()} m/s^2")
+        self.estimator.set_disturbance((0.0, 0.0, 0.0))
 
     # -- one period -----------------------------------------------------------------------------------------------
     def _stalled(self, t: float) -> bool:
@@ -669,7 +654,6 @@ class Flight:
         telemetry = self.backend.telemetry()
         est = self.estimator
         state, age = self._estimate(telemetry)
-        self._learn_steady_disturbance(t, age)
         if any(telemetry.module_faults):
             if not self._on_module_fault(t, state, telemetry):
                 return False
@@ -798,6 +782,9 @@ class Flight:
         sp = replace(sp, omega=self._turn_rate(t, sp, "plan" if reference is self.plan else self._landing[0]))
         gains = self.gains if self.gyros.lost_since is None else self._gains_without_gyros
         out = control(state, sp, self.model, gains)
+        if self.phase == Phase.LANDING and self._height < PRESS_HEIGHT_M and \
+                (self._landing is not None and self._landing[2] or age > PRESS_STALE_S):
+            out = self._pressed(out, state)
         if est.attitude_unobserved:
             # Neither gyros nor poses: an attitude error the controller sees cannot shrink (the estimate is held),
             # and its torque, held on, turned the V over in 0.4 s. No torque: the body keeps the turn it has.
@@ -813,6 +800,17 @@ class Flight:
         self._last_u = u
         self._record(t, state, sp, out, u, age, telemetry)
         return True
+
+    def _pressed(self, out, state: RigidState):
+        """``out`` with its collective thrust at most the weight less ``BLIND_PRESS_MPS2``'s worth: a landing whose
+        estimate is at the ground without fresh poses never pushes up. Landed unseen (the poses lost in the last 0.3
+        s of a 1 s landing), the estimate went on down and the controller braked it: the thrust lifted the landed V
+        and the motors stopped 0.24-0.29 m up, "landed blind"."""
+        force = state.rotation @ out.wrench[:3]
+        cap = self.model.mass * (GRAVITY - BLIND_PRESS_MPS2)
+        if force[2] <= cap:
+            return out
+        return replace(out, wrench=np.concatenate([out.wrench[:3] * (cap / force[2]), out.wrench[3:]]))
 
     def _unmoved_by_thrust(self, t: float) -> str:
         """Why the assembly does not move as its thrust says ("" while it does): the estimator's disturbance beyond

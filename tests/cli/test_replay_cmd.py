@@ -108,3 +108,20 @@ def test_series_stay_bounded():
         d.add(k)
     assert len(d.rows) <= 1000 and d.rows[0] == 0 and d.rows[-1] > 990_000
     assert all(b - a == d.stride for a, b in zip(d.rows, d.rows[1:], strict=False))  # evenly spaced
+
+
+@pytest.mark.parametrize("stdout", ["/dev/full", "closed"])
+def test_figures_that_cannot_be_printed_are_one_line_on_stderr(two_logs, tmp_path, stdout):
+    """``replay LOG > /dev/full`` ended in a traceback (ENOSPC), ``>&-`` printed nothing and exited 0."""
+    import subprocess
+    import sys
+
+    err = tmp_path / "err"
+    for args in ([], ["--json"]):
+        with err.open("w") as e, open(os.devnull if stdout == "closed" else stdout, "w") as out:
+            proc = subprocess.run([sys.executable, "-m", "groundstation", "replay", str(two_logs[0]), *args],
+                                  stdin=subprocess.DEVNULL, stdout=out, stderr=e, cwd=ROOT, timeout=120,
+                                  preexec_fn=(lambda: os.close(1)) if stdout == "closed" else None)
+        text = err.read_text()
+        assert proc.returncode == 1 and "Traceback" not in text, text
+        assert text.splitlines()[-1].startswith("groundstation: cannot print the replay ("), text

@@ -190,6 +190,22 @@ def f_mocap_frozen_in_the_takeoff(cli, tmp_path):
     _blind_from_the_takeoff(tmp_path, 7556, "mocap_frozen", 0.3, 0.5)
 
 
+@estimate_fault("mocap: no pose from 0.3 s before the touchdown of a 1 s planned landing, for good (dry run)",
+                "the touchdown unseen: the blind landing's estimate goes on below the ground, where it never pushes "
+                "up (the thrust at most 5 % under the weight): on the ground, upright, 'landed blind', exit 1 (the "
+                "estimate braked there, the thrust lifted the landed V and the motors stopped 0.24 m up)")
+def f_mocap_lost_before_the_touchdown(cli, tmp_path):
+    faults = Faults()
+    log = tmp_path / "touchdown.mcap"
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7557"), duration=3.0, log_path=log, faults=faults,
+              on_period=lambda t: setattr(faults, "mocap_paused", t >= TRACK_START_S + 3.0 + 0.25 + 0.7))
+    assert res.phase == "done" and res.reason.startswith("mocap stale"), res.reason
+    truth = _truth(log)
+    ground = truth[0][2]
+    assert max(z for t, _, z, _ in truth if t > TRACK_START_S + 3.0 + 0.25 + 0.9) < ground + 0.1  # never lifted
+    _touched_down_upright(log)
+
+
 def _bridge_restarted(tmp_path, port: int, keyed: bool):
     """A dry run whose mocap publisher stops in tracking and a new one (a new entity id, its sequence from 1) takes
     its place 1 s later, as a restarted bridge; (result, log, the last /mocap/stats)."""
