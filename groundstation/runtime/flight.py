@@ -713,10 +713,10 @@ class Flight:
             if self._landing is None or not self._landing[2]:  # not yet landing blind (the plan's landing too)
                 self._begin_landing(t, state, why + ": landing blind on the estimate", blind=True)
             e = est.estimate()
+            below = self._landing_reference(t).position[2] < float(self.plan.ground[2])
             for sigma, bound, which in ((e.height_sigma, self.policy.max_height_sigma_m, "height"),
                                         (e.position_sigma, self.policy.max_position_sigma_m, "position"),
                                         (e.attitude_sigma, MAX_UNSEEN_ATTITUDE_SIGMA, "attitude")):
-                below = self._landing_reference(t).position[2] < float(self.plan.ground[2])
                 if sigma <= bound or (which == "height" and below and math.isfinite(sigma)):  # on to the end
                     continue
                 if which == "attitude":
