@@ -807,6 +807,11 @@ def _mcap_writer(fh) -> Writer:
     return Writer(fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD, enable_data_crcs=True)
 
 
+RECOVERED = "recovered"
+"""Metadata record :func:`recover` adds to its copy: a JSON object with the source's path, whether it was complete
+and the warnings naming what was dropped (the reader repeats them)."""
+
+
 def recover(src: str | Path, dst: str | Path) -> dict:
     """Copy every intact record of a possibly truncated or damaged MCAP (e.g. after SIGKILL, or a flipped bit on
     the disk) into a finalized file at ``dst``, streamed (memory does not grow with the log).
@@ -843,6 +848,10 @@ def recover(src: str | Path, dst: str | Path) -> dict:
                     w.add_metadata(rec.name, dict(rec.metadata))
                 elif isinstance(rec, Attachment):
                     w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
+            # What the copy is and what it lost, in the copy itself: without it a recovered log whose config record
+            # was dropped read back as a complete flight with no word of the damage (only recover's output said so).
+            w.add_metadata(RECOVERED, {"value": json.dumps({"source": str(src), "source_was_complete": scan.complete,
+                                                            "warnings": scan.warnings()})})
             w.finish()
     except BaseException:
         # The copy is ours (created above): a full disk or an interruption must not leave a partial file that a

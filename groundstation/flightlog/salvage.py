@@ -75,8 +75,9 @@ SCAN_BLOCK = 1 << 16
 """Bytes read at a time when scanning for the next intact chunk."""
 RESYNC_BYTES = 1 << 20
 """Most bytes of a damaged record outside the chunks parsed to find where its content ends."""
-JSON_METADATA = frozenset({"config", "assembly"})
-"""Metadata records whose value a flight writes as a JSON object (``runtime/fly.py``)."""
+JSON_METADATA = frozenset({"config", "assembly", "recovered"})
+"""Metadata records whose value is a JSON object (a flight's: ``runtime/fly.py``; ``log recover``'s:
+:data:`groundstation.flightlog.mcap_log.RECOVERED`)."""
 WARNING_LINES = 10
 """Damaged stretches described one by one in :meth:`LogScan.warnings`; the summary line counts them all."""
 

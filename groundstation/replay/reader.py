@@ -21,7 +21,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from mcap.records import Channel, Header, Message, Metadata
 
 from groundstation.errors import ConfigError
-from groundstation.flightlog.mcap_log import LIBRARY
+from groundstation.flightlog.mcap_log import LIBRARY, RECOVERED
 from groundstation.flightlog.salvage import MAGIC, LogScan, log_file, read_header
 
 LEVEL_NAMES = {Log.DEBUG: "debug", Log.INFO: "info", Log.WARNING: "warning", Log.ERROR: "error",
@@ -60,6 +60,7 @@ class LogFile:
         size = max(self.path.stat().st_size, 1)
         scan = LogScan(self.path)
         undecodable: dict[str, int] = {}
+        recovered: list[str] = []
         for count, rec in enumerate(scan.records(), 1):
             if progress is not None and count % 5000 == 0:
                 progress(scan.position / size)
@@ -67,6 +68,8 @@ class LogFile:
                 channels[rec.id] = rec
             elif isinstance(rec, Metadata):
                 self.metadata[rec.name] = dict(rec.metadata).get("value", "")
+                if rec.name == RECOVERED:  # one per recovery (a recovered log recovered again has two)
+                    recovered += _recovered_from(self.metadata[rec.name])
             elif isinstance(rec, Message):
                 ch = channels[rec.channel_id]  # the scan hands out no message before its channel
                 if topics is None or ch.topic in topics:
@@ -76,11 +79,22 @@ class LogFile:
                         undecodable[ch.topic] = undecodable.get(ch.topic, 0) + 1
                         continue
                     yield LogRecord(ch.topic, rec.log_time * 1e-9, rec.publish_time * 1e-9, data)
-        self.complete = scan.complete and not undecodable
+        self.complete = scan.complete and not undecodable and not recovered
         self.skipped = scan.warnings()[-1] if scan.damage else ""
-        self.warnings = tuple(scan.warnings()) + tuple(f"{n} message(s) on {topic} are not what the topic holds "
-                                                       f"(not a JSON object): skipped"
-                                                       for topic, n in undecodable.items())
+        self.warnings = (tuple(scan.warnings()) + tuple(recovered)
+                         + tuple(f"{n} message(s) on {topic} are not what the topic holds (not a JSON object): skipped"
+                                 for topic, n in undecodable.items()))
+
+
+def _recovered_from(value: str) -> list[str]:
+    """The warnings of a :data:`RECOVERED` record (its JSON checked by the scan): none for a copy of a complete log;
+    else what its source lost, each line naming the source."""
+    record = json.loads(value)
+    source = record.get("source", "?")
+    if record.get("source_was_complete") is True:
+        return []
+    lost = [str(w) for w in record.get("warnings", [])] or ["cut short (not finalized)"]
+    return [f"recovered by `log recover` from {source}, which lost: {w}" for w in lost]
 
 
 _UNITS = {"position": "position_m", "velocity": "velocity_mps", "acceleration": "acceleration_mps2",

@@ -895,8 +895,12 @@ class Flight:
             self._emergency(t, f"the landing's time ran out {height:.2f} m above the ground (by the estimate): "
                                f"motors off")
         elif self._landing is not None and self._landing[2]:
-            # On the estimate alone: where the ground is is known to its height's std, not to a pose's mm.
-            self._finish(t, f"landed blind (the height's std {self.estimator.estimate().height_sigma:.2f} m)")
+            if self.estimator.age(self.pose.now()) <= self.policy.mocap_timeout_s:
+                # Poses came back during the blind descent: the touchdown was seen ("std 0.00 m" said otherwise).
+                self._finish(t, "landed (a blind landing, the poses back by the touchdown)")
+            else:
+                # On the estimate alone: where the ground is is known to its height's std, not to a pose's mm.
+                self._finish(t, f"landed blind (the height's std {self.estimator.estimate().height_sigma:.2f} m)")
         else:
             self._finish(t)
 

@@ -111,7 +111,7 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
 
 @estimate_fault("mocap: no pose for 1 s in tracking (dry run)",
                 "a blind landing on the estimate, the poses fused again when they return; touches down upright (tilt "
-                "below 15 deg), exit 1")
+                "below 15 deg), 'landed (a blind landing, the poses back by the touchdown)', exit 1")
 def f_mocap_blackout_1s(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "blackout.mcap"
@@ -119,6 +119,9 @@ def f_mocap_blackout_1s(cli, tmp_path):
               faults=faults,
               on_period=lambda t: setattr(faults, "mocap_paused", TRACK_START_S + 2.5 <= t < TRACK_START_S + 3.5))
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
+    # the touchdown was seen: not "landed blind (the height's std 0.00 m)"
+    assert any(text == "landing -> done: landed (a blind landing, the poses back by the touchdown)"
+               for *_, text in res.events), res.events
     truth = _truth(log)
     assert max(tilt for *_, tilt in truth) < 15.0
     ground = truth[0][2]

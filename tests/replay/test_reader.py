@@ -18,6 +18,7 @@ from mcap.records import Metadata
 
 from groundstation.control.geometric import Gains
 from groundstation.errors import ConfigError
+from groundstation.flightlog.mcap_log import recover
 from groundstation.replay.analysis import analyse
 from groundstation.replay.export import export_csv
 from groundstation.replay.reader import open_log, upgraded
@@ -160,6 +161,29 @@ def test_a_flipped_bit_in_the_config_metadata_costs_the_config_alone(tmp_path):
     again = analyse(bad, rerun=True, gains=gains, allocation=whole.metadata["config"]["allocation"])
     assert again.rerun == analyse(log, rerun=True).rerun and again.rerun.periods == whole.metrics.periods
     assert again.warnings == r.warnings[:2]
+
+
+def test_a_recovered_log_says_what_its_source_lost(tmp_path):
+    """``log recover``'s copy of the log above is whole by its own bytes; its replay still names what the source lost
+    (the config record), and is not complete. Before: "complete", no warning (only recover's output had said it).
+    A copy of an intact log (and a copy of that copy) replays complete, with no warning."""
+    log = flight_log()
+    bad, (start, end) = config_bit_flipped(log, tmp_path / "config.mcap")
+    copy = tmp_path / "recovered.mcap"
+    recover(bad, copy)
+    r = analyse(copy)
+    lost = (f"bytes {start}-{end}: the config metadata record is damaged (its value is not JSON): skipped",
+            totals(log))
+    assert not r.complete and r.warnings == tuple(f"recovered by `log recover` from {bad}, which lost: {w}"
+                                                  for w in lost)
+    assert r.metrics == analyse(log).metrics and r.metadata["config"] == {}
+    recover(copy, tmp_path / "again.mcap")  # the copy's copy: the first recovery's word is kept
+    assert analyse(tmp_path / "again.mcap").warnings == r.warnings
+    recover(log, tmp_path / "whole.mcap")
+    recover(tmp_path / "whole.mcap", tmp_path / "whole2.mcap")
+    for whole in ("whole.mcap", "whole2.mcap"):
+        w = analyse(tmp_path / whole)
+        assert w.complete and w.warnings == () and w.metrics == analyse(log).metrics
 
 
 def test_a_metadata_record_that_does_not_parse_is_skipped_alone(tmp_path):
