@@ -8,7 +8,9 @@ reach the operator as a traceback. These wrap the writes of the commands' writer
 
 from __future__ import annotations
 
+import errno
 import os
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,17 +27,77 @@ def descriptor_open(fd: int) -> bool:
     return True
 
 
+class StdoutError(OSError):
+    """What a command prints did not reach stdout: closed (``>&-``), a full device, a pipe whose reader went."""
+
+
+class GuardedStdout:
+    """``sys.stdout`` of a command's process: a write or flush that fails raises :class:`StdoutError`, so the command
+    line tells that failure (one line on stderr, exit 1: ``simulate > /dev/full`` ended in a traceback) from any other
+    ``OSError``, which is a fault to see whole. Everything else is the stream's. Descriptor 1 closed, every write
+    fails (Python leaves ``sys.stdout`` None then, and click and rich drop what is printed to None without a word:
+    ``simulate``, ``enumerate``, ``--help`` printed nothing and exited 0)."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self._failed = None if stream is not None else StdoutError(errno.EBADF, "stdout is closed")
+        """The failure, kept: every later write fails with it (click's probe of the stream swallows the first)."""
+
+    def write(self, text: str) -> int:
+        self._check()
+        try:
+            return self._stream.write(text)
+        except OSError as exc:
+            self._give_up(exc)
+            raise self._failed from None
+
+    def flush(self) -> None:
+        if self._stream is None:  # closed: nothing was written (every write failed)
+            return
+        self._check()
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            self._give_up(exc)
+            raise self._failed from None
+
+    def _check(self) -> None:
+        if self._failed is not None:
+            raise self._failed
+
+    def isatty(self) -> bool:
+        return self._stream is not None and self._stream.isatty()
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+    def _give_up(self, exc: OSError) -> None:
+        """Keep the failure, and put descriptor 1 on /dev/null: what is left in the buffer would fail again in
+        Python's flush at exit (a traceback of its own)."""
+        self._failed = StdoutError(exc.errno, exc.strerror or str(exc))
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 1)
+        os.close(null)
+
+
+def stdout_lost() -> None:
+    """Stdout failed and the command said so on stderr: from here what is printed goes to /dev/null (Python's own
+    flush at exit would fail once more, with a traceback and status 120)."""
+    sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (the process's, to its end)
+
+
 def hold_standard_descriptors() -> None:
     """Put /dev/null on each of descriptors 0-2 that is closed (``>&-``, ``2>&-``, ``0<&-``), for the process's life:
     the next file opened would otherwise be given it, and what is written to stdout or stderr (a C library's
-    messages, the summary) would land in it (a flight's log). Python's ``sys.stdout`` and ``sys.stderr`` stay
-    None, so the commands still know there is nobody to tell."""
+    messages, the summary) would land in it (a flight's log); and guard stdout (:class:`GuardedStdout`).
+    ``sys.stderr`` closed stays None (nobody is told anything)."""
     for fd in (0, 1, 2):
         if not descriptor_open(fd):
             null = os.open(os.devnull, os.O_RDWR)
             if null != fd:
                 os.dup2(null, fd)
                 os.close(null)
+    sys.stdout = GuardedStdout(sys.stdout)
 
 
 @contextmanager

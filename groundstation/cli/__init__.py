@@ -8,6 +8,7 @@ be reached or refuse to arm), 130 on Ctrl-C.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import signal
 import sys
@@ -24,7 +25,7 @@ from groundstation.cli.params_cmd import params_command
 from groundstation.cli.replay_cmd import replay_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import BackendError, GroundstationError
-from groundstation.output import hold_standard_descriptors
+from groundstation.output import StdoutError, hold_standard_descriptors, stdout_lost
 from groundstation.runtime.signals import LANDING_SIGNALS
 
 EXIT_FAILED = 1
@@ -67,6 +68,12 @@ def main(argv: list[str] | None = None) -> None:
             if signal.getsignal(s) is not h:
                 signal.signal(s, h)
     if argv is None:
+        try:  # what was printed into the buffer reaches stdout here, or fails here
+            sys.stdout.flush()
+        except StdoutError as exc:
+            _say_not_printed(exc)
+            rv = rv or EXIT_FAILED
+    if argv is None:
         # The command's work is done: a signal while the interpreter exits must not change its status. Late in
         # its exit Python puts the default handlers back (not where they are ignored), and a SIGTERM there ended
         # a finished flight 143 after its summary said "done" (hostile campaign). Blocking them would not do: Zenoh's
@@ -99,4 +106,14 @@ def _run(argv: list[str] | None) -> int:
     except GroundstationError as exc:
         click.echo(f"groundstation: error: {exc}", err=True)
         return EXIT_BAD_INPUT
+    except StdoutError as exc:  # any other OSError is a fault to see whole (a command's files: output.writing)
+        _say_not_printed(exc)
+        return EXIT_FAILED
     return rv if isinstance(rv, int) else 0
+
+
+def _say_not_printed(exc: StdoutError) -> None:
+    """One line on stderr: what the command printed did not reach stdout (a full device, closed, a pipe gone)."""
+    with contextlib.suppress(OSError):  # stderr may be as broken: then the exit status says it
+        click.echo(f"groundstation: error: cannot print the output ({exc.strerror})", err=True)
+    stdout_lost()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import os
 import signal
@@ -32,6 +31,7 @@ from groundstation.cli.mocap_cmd import BODY, BodyList, KeyChunks, ListenEndpoin
 from groundstation.control.phase import Phase
 from groundstation.errors import UsageError
 from groundstation.loop_activity import LoopActivity
+from groundstation.output import stdout_lost
 from groundstation.runtime.signals import LANDING_SIGNALS
 from groundstation.runtime.terminal import forget_lost_terminal
 
@@ -115,6 +115,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
         with contextlib.suppress(OSError):
             click.echo(f"groundstation: cannot print the flight's summary ({exc.strerror or exc}); it is in the "
                        f"log {result.log_path}", err=True)
+        stdout_lost()
         status = _status(result)
     _end_on_signal(LANDING_SIGNALS, status, now=bool(held))
     return status
@@ -162,8 +163,6 @@ def _report(flight: str, result, as_json: bool) -> int:
     # and a script reading only the JSON must see why.
     summary = {"phase": result.phase, "reason": result.reason, "degraded": list(result.degraded),
                "log": str(result.log_path), "log_error": result.log_error, **asdict(result.metrics)}
-    if sys.stdout is None:  # closed (>&-): click and rich would drop the summary without a word
-        raise OSError(errno.EBADF, "stdout is closed")
     if as_json:
         click.echo(json.dumps(json_safe(summary)))
     else:

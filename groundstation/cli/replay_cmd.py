@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import math
-import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -16,6 +14,7 @@ from rich.table import Table
 
 from groundstation.cli.common import FINITE, LABELS, cell, json_safe, progress_bar, stderr_console, writable_output
 from groundstation.errors import UsageError
+from groundstation.output import stdout_lost
 
 ROWS = ("phase", "reason", "duration_s", "tracked_s", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
         "orientation_error_p95_deg", "max_roll_error_deg", "max_yaw_error_deg", "max_motor_fraction",
@@ -101,12 +100,11 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
             plot_replays(flown, plot_path)
             click.echo(f"plot: {plot_path}", err=True)
     try:
-        if sys.stdout is None:  # closed (>&-): click and rich would drop the figures without a word
-            raise OSError(errno.EBADF, "stdout is closed")
         _print(replays, lags, as_json, t_from, t_to)
     except OSError as exc:  # stdout on a full disk, closed, a pipe gone: one line, not a traceback
         with contextlib.suppress(OSError):
             click.echo(f"groundstation: cannot print the replay ({exc.strerror or exc})", err=True)
+        stdout_lost()
         return 1
     return 0
 

@@ -106,5 +106,6 @@ def test_fly_simulate_and_sim_peer_run_with_stderr_closed(tmp_path):
     code, out, _ = _run_closed(["sim-peer", ASSEMBLY, "--port", "19894", "--mocap", "tcp/127.0.0.1:7793",
                                 "--duration", "0.5"], (2,), tmp_path)
     assert code == 0 and json.loads(out)["simulated_s"] > 0.4, out
+    # both closed: nobody to tell, the status says the figures were not printed
     code, out, _ = _run_closed(["simulate", ASSEMBLY, "--duration", "0.5", "--trajectory", "hover"], (1, 2), tmp_path)
-    assert code == 0 and out == ""
+    assert code == 1 and out == ""

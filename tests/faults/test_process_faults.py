@@ -279,6 +279,36 @@ def f_stdout_full(cli, tmp_path):
     assert r["complete"] and r["phase"] == "done" and r["reason"] == ""
 
 
+@process_fault("every command's stdout on a full device (/dev/full), closed (>&-) or a pipe whose reader went: "
+               "--version, enumerate 3, simulate --json",
+               "full or closed: one line on stderr, 'cannot print the output (...)', exit 1 (before: a traceback "
+               "on /dev/full, nothing and exit 0 with stdout closed); the pipe: exit 1, quiet (click's way: the "
+               "reader chose to stop, as `| head` does)")
+def f_stdout_of_every_command_lost(cli, tmp_path):
+    commands = (["--version"], ["enumerate", "3"],
+                ["simulate", str(ROOT / "configs/assemblies/toy_v2.json"), "--trajectory", "hover", "--duration",
+                 "0.5", "--json"])
+    for args in commands:
+        for kind, why in (("full", "No space left on device"), ("closed", "stdout is closed"), ("pipe", None)):
+            err_path = tmp_path / "err"
+            read_end, write_end = os.pipe()
+            os.close(read_end)  # the reader gone before anything is printed
+            with contextlib.ExitStack() as stack:
+                err = stack.enter_context(err_path.open("w"))
+                out = stack.enter_context(open("/dev/full", "w")) if kind == "full" else \
+                    write_end if kind == "pipe" else None
+                proc = subprocess.run([sys.executable, "-m", "groundstation", *args], stdin=subprocess.DEVNULL,
+                                      stdout=out, stderr=err, cwd=ROOT, timeout=300,
+                                      preexec_fn=(lambda: os.close(1)) if kind == "closed" else None)
+            os.close(write_end)
+            text = err_path.read_text()
+            assert proc.returncode == 1 and "Traceback" not in text and "Exception" not in text, (args, kind, text)
+            if why is None:
+                assert "error" not in text, (args, text)
+            else:
+                assert text.splitlines()[-1] == f"groundstation: error: cannot print the output ({why})", (args, text)
+
+
 @process_fault("the terminal hanging up in flight (fly on a pseudo-terminal whose other end closes: an SSH "
                "connection dropping; the kernel's SIGHUP, then EIO on every write to it)",
                "a landing; the status line's last redraw and the summary's lines go nowhere instead of ending the "
