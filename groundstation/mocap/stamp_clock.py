@@ -12,6 +12,14 @@ could have arrived (a capture re-sent later) is rejected whatever it says, so it
 scales with the time between samples; a poll that came late (a busy ground station, a pause between preflight
 and take-off) is not held against the samples it finds. The offset follows slow clock drift (it is the minimum
 over a sliding window), never a jump.
+
+A sample found late (in a poll more than ``max_skew_s`` after the one before: the first poll, which finds what
+queued since the subscriber was declared, one after a pause) gives only an upper bound of the offset, too large by
+up to that poll's interval. While such a sample is the stream's offset, a stamp is not from the future unless it is
+beyond that interval too; the first sample found promptly confirms the offset (or, faster, replaces it) and the
+bound is ``max_skew_s`` again. Before, a first poll whose burst held a 70-110 ms stall of the publisher took the
+offset from the stall's last sample, 0.3 s old by then, and every genuine sample after it was "from the future" for
+good (a ground station's preflight, hostile campaign 25: rescued only by a later pause in the polls).
 """
 
 from __future__ import annotations
@@ -35,8 +43,10 @@ class StampClock:
 
     def __init__(self, settings: StampClockSettings | None = None) -> None:
         self.settings = settings or StampClockSettings()
-        self._window: deque[tuple[float, float]] = deque()
-        """(arrival, offset) of taken samples, offsets increasing from the left: the sliding minimum."""
+        self._window: deque[tuple[float, float, float]] = deque()
+        """(arrival, offset, looseness) of taken samples, offsets increasing from the left: the sliding minimum.
+        Looseness: how much after its arrival the sample may have been found (0 when found promptly, within
+        ``max_skew_s``), s."""
 
     @property
     def offset(self) -> float | None:
@@ -53,7 +63,10 @@ class StampClock:
         """How far the stamp is from any arrival time in [``earliest``, ``latest``] on the stream's offset, s
         (positive: measured too long before; negative: from the future; 0: believable at some arrival)."""
         late, early = self.skew(stamp, earliest), self.skew(stamp, latest)
-        return late if late > 0 else early if early < 0 else 0.0
+        if late > 0:
+            return late
+        early += self._window[0][2] if self._window else 0.0  # an offset found late may be that much too large
+        return early if early < 0 else 0.0
 
     def believable(self, stamp: float, earliest: float, latest: float) -> bool:
         return abs(self.disagreement(stamp, earliest, latest)) <= self.settings.max_skew_s
@@ -64,12 +77,17 @@ class StampClock:
         assert offset is not None, "no sample taken yet"
         return stamp + offset
 
-    def take(self, stamp: float, arrival: float) -> None:
-        """A believed sample: its offset enters the window."""
+    def take(self, stamp: float, arrival: float, earliest: float | None = None) -> None:
+        """A believed sample, found at ``arrival`` (arrived after ``earliest``: the poll before; None: promptly):
+        its offset enters the window."""
         offset = arrival - stamp
+        found = 0.0 if earliest is None else arrival - earliest
+        loose = found if found > self.settings.max_skew_s else 0.0
         w = self._window
         while w and w[-1][1] >= offset:
             w.pop()
-        w.append((arrival, offset))
+        if not loose and any(e[2] for e in w):  # found promptly: the offset is the fastest path's again
+            self._window = w = deque((a, o, 0.0) for a, o, _ in w)
+        w.append((arrival, offset, loose))
         while w[0][0] < arrival - self.settings.window_s:
             w.popleft()

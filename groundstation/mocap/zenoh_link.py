@@ -181,8 +181,9 @@ class PoseSubscriber:
         self._clock = clock
         self._mac_key = mac_key
         self._stamps = StampClock(self.settings.stamps)
-        self._polled = -np.inf
-        """When the samples were last polled (clock time), s."""
+        self._polled = clock()
+        """When the samples were last polled (clock time), s; at first when the subscriber was declared (below):
+        nothing the first poll finds arrived before."""
         self._conflicts: list[tuple[float, float]] = []
         """(arrival s, suspect s: :meth:`_conflict`) of the sequence conflicts of the last second."""
         self._untrusted_since: float | None = None
@@ -339,7 +340,7 @@ class PoseSubscriber:
                 self.resyncs += 1  # a consistent new track: follow it
                 self._abandoned, self._behind_of = last, track[0]  # from its first sample, it may be forged
                 track.clear()
-                self._take(pose, now)
+                self._take(pose, now, before)
                 return
             self._track.clear()
             if self._behind_since_accept and self._mac_key is None:  # with a key, samples behind are replays
@@ -347,7 +348,7 @@ class PoseSubscriber:
             self.missed += pose.sequence - last.sequence - 1
             if not self._conflicts:  # the stream's own rate, learnt while a single sender is seen
                 self._cadence += 0.05 * ((pose.stamp - last.stamp) / (pose.sequence - last.sequence) - self._cadence)
-        self._take(pose, now)
+        self._take(pose, now, before)
 
     def _may_hand_over(self, now: float) -> bool:
         """A sample of another publisher, arriving ``now``, may start a new source: it carries the key's MAC (it
@@ -369,10 +370,10 @@ class PoseSubscriber:
         self._behind_since_accept = False
         self._stamps = StampClock(self.settings.stamps)
 
-    def _take(self, pose: PoseSample, now: float) -> None:
+    def _take(self, pose: PoseSample, now: float, before: float) -> None:
         self._last = pose
         self._received_at = now
-        self._stamps.take(pose.stamp, now)
+        self._stamps.take(pose.stamp, now, before)
         self._taken.append(pose)
         self._behind_since_accept = False
         self.accepted += 1
