@@ -139,8 +139,9 @@ class SubscriberSettings:
     a single publisher's samples arrive in order on Zenoh's ordered links, so only a second sender that copied the
     source id produces them."""
     handover_silence_s: float = 0.5
-    """With a key: a new authenticated publisher becomes the source once the old one has been silent this long (a bridge
-    restarted: a new entity id, its sequence from 1, after a second or more), s. Not shorter: a second key holder
+    """With a key: a new authenticated publisher whose stamps are fresh on the old one's clock becomes the source once
+    the old one has been silent this long (a bridge restarted: a new entity id, its sequence from 1, after a second
+    or more), s. Not shorter: a second key holder
     took over after a 120 ms hiccup of the genuine bridge, which was then a second publisher. Without a key
     anyone may publish, and a new publisher is never taken (a second publisher is a fault)."""
 
@@ -294,7 +295,7 @@ class PoseSubscriber:
             return
         info = sample.source_info
         source = str(info.source_id) if info is not None else "unidentified"
-        if self._source is not None and source != self._source and self._may_hand_over(now):
+        if self._source is not None and source != self._source and self._may_hand_over(pose, before, now):
             self._hand_over(now)
         if self._source is None:
             self._source = source
@@ -350,16 +351,23 @@ class PoseSubscriber:
                 self._cadence += 0.05 * ((pose.stamp - last.stamp) / (pose.sequence - last.sequence) - self._cadence)
         self._take(pose, now, before)
 
-    def _may_hand_over(self, now: float) -> bool:
-        """A sample of another publisher, arriving ``now``, may start a new source: it carries the key's MAC (it
-        decoded), no second publisher was ever seen beside the source, and the source has been silent for
-        ``handover_silence_s``."""
+    def _may_hand_over(self, pose: PoseSample, before: float, now: float) -> bool:
+        """``pose``, of another publisher, found at ``now`` (arrived after ``before``), may start a new source: it
+        carries the key's MAC (it decoded), no second publisher was ever seen beside the source, the source has been
+        silent for ``handover_silence_s``, and its stamp is fresh on the old source's clock (a restarted bridge
+        stamps on the same host's clock). A MAC proves who made a sample, not when it is sent: samples captured
+        from the genuine bridge and sent again once it fell silent were taken for a restarted bridge, their
+        stamps judged on a clock learnt from them alone, and the blind landing flew on the old poses (motors off
+        0.9-1.1 m up, "landed"; in SITL the V climbed to 3 m; hostile campaign 26). A bridge restarted on a clock
+        off by more than ``stamps.max_skew_s`` is a second publisher: the flight lands on its estimate."""
         return (self._mac_key is not None and not self.foreign
-                and now - self._source_heard >= self.settings.handover_silence_s)
+                and now - self._source_heard >= self.settings.handover_silence_s
+                and self._stamps.believable(pose.stamp, before, now))
 
     def _hand_over(self, now: float) -> None:
-        """Forget the old source: the new one is taken as the first was (its sequence, stamps and clock offset its
-        own); the estimator still judges its poses against the body's motion."""
+        """Forget the old source: the new one is taken as the first was (its sequence its own); its stamps go on
+        being judged on the old source's clock (:meth:`_may_hand_over`); the estimator still judges its poses
+        against the body's motion."""
         self.handovers += 1
         self.last_handover = (f"a new publisher on {self.key} after {(now - self._source_heard) * 1e3:.0f} ms of "
                               f"silence (a restarted bridge)")
@@ -368,7 +376,6 @@ class PoseSubscriber:
         self._track.clear()
         self._conflicts.clear()
         self._behind_since_accept = False
-        self._stamps = StampClock(self.settings.stamps)
 
     def _take(self, pose: PoseSample, now: float, before: float) -> None:
         self._last = pose

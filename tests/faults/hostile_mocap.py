@@ -2,7 +2,8 @@
 
     python -m tests.faults.hostile_mocap --connect tcp/127.0.0.1:7490 --key mocap/assembly/pose
                                          --mode second|huge-seq|replay|drift|spoof|malformed|copy-id|
-                                                nan-stamp|future-stamp|replay-captured|sink [--after 5]
+                                                nan-stamp|future-stamp|replay-captured|sink|resync|
+                                                handover-replay [--after 5]
                                                 [--duration 10]
 
 Modes: ``second`` publishes a plausible pose of its own (0.3 m off) at 100 Hz; ``huge-seq`` one sample with a
@@ -12,8 +13,10 @@ payloads that do not decode. The next modes first read the genuine stream (any p
 publish under its source id (copied from its samples): ``copy-id`` the genuine pose dragged off at 0.5 m/s, its
 sequence numbers one ahead of the genuine ones; ``sink`` the same dragged down; ``nan-stamp`` samples whose stamp
 is NaN, infinite or negative; ``future-stamp`` a pose 1 m off stamped 100 s ahead; ``replay-captured`` the genuine
-samples re-sent as captured (MACs included) 0.1 s later. It connects to the ground station's Zenoh endpoint (the
-ground station listens: ``mocap.listen = true``), waits ``--after`` seconds, then attacks.
+samples re-sent as captured (MACs included) 0.1 s later. ``handover-replay``, as a publisher of its own: once the
+genuine stream has been silent for 0.55 s, the samples it sent in the 0.3 s before its silence, as captured, at
+100 Hz (a restarted bridge to a ground station that takes one with the key). It connects to the ground station's
+Zenoh endpoint (the ground station listens: ``mocap.listen = true``), waits ``--after`` seconds, then attacks.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--key", default="mocap/assembly/pose")
     ap.add_argument("--mode", required=True,
                     choices=("second", "huge-seq", "replay", "drift", "spoof", "malformed", "copy-id", "nan-stamp",
-                             "future-stamp", "replay-captured", "sink", "resync"))
+                             "future-stamp", "replay-captured", "sink", "resync", "handover-replay"))
     ap.add_argument("--after", type=float, default=5.0)
     ap.add_argument("--duration", type=float, default=10.0)
     a = ap.parse_args(argv)
@@ -51,9 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     cfg.insert_json5("connect/retry", '{period_init_ms: 50, period_max_ms: 50, period_increase_factor: 1}')
     session = zenoh.open(cfg)
     captured: list[zenoh.Sample] = []
-    spy = session.declare_subscriber(a.key, captured.append)
+    heard: list[float] = []  # when each was captured (monotonic), for handover-replay
+    spy = session.declare_subscriber(a.key, lambda s: (heard.append(time.monotonic()), captured.append(s)))
     try:
         time.sleep(a.after)
+        if a.mode == "handover-replay":
+            return _after_the_silence(session, a, captured, heard)
         if a.mode in ("copy-id", "nan-stamp", "future-stamp", "replay-captured", "sink", "resync"):
             return _as_the_genuine_source(session, a, captured)
         spy.undeclare()
@@ -126,6 +132,23 @@ def _as_the_genuine_source(session: zenoh.Session, a: argparse.Namespace, captur
             payload, att = old.payload.to_bytes(), old.attachment.to_bytes()
             seq = struct.unpack("<Qd", att[:16])[0]
         raw.put(payload, attachment=att, source_info=zenoh.SourceInfo(source, seq))
+        time.sleep(0.01)
+    time.sleep(0.5)
+    return 0
+
+
+def _after_the_silence(session: zenoh.Session, a: argparse.Namespace, captured: list, heard: list[float]) -> int:
+    """handover-replay: the samples of the 0.3 s before the genuine stream's silence, once it has lasted 0.55 s."""
+    end = time.monotonic() + a.duration
+    while not heard or time.monotonic() - heard[-1] < 0.55:
+        if time.monotonic() > end:
+            return 0
+        time.sleep(0.002)
+    last = heard[-1]
+    replayed = [s for t, s in zip(heard, captured, strict=False) if last - 0.3 <= t <= last]
+    pub = session.declare_publisher(a.key)
+    for s in replayed:
+        pub.put(s.payload.to_bytes(), attachment=s.attachment.to_bytes())
         time.sleep(0.01)
     time.sleep(0.5)
     return 0

@@ -123,18 +123,20 @@ def f_bad_input_unwritable_log_dir(cli, tmp_path):
 
 
 # -- mocap integrity: a hostile publisher in another process --------------------------------------------------------
-def _hostile_flight(tmp_path, mode: str, after: float = 4.5, key_file: Path | None = None):
+def _hostile_flight(tmp_path, mode: str, after: float = 4.5, key_file: Path | None = None,
+                    changes: dict[str, str] | None = None, **flight):
     """A dry run whose ground station listens for mocap (the simulator and the attacker connect to it), attacked
     ``after`` s after its start; with ``key_file`` the flight and its simulated mocap share that key (the attacker
-    has none). Returns the flight's result and its log."""
+    has none); ``changes`` to the config, ``flight``: more of :func:`fly`'s arguments (faults). Returns the flight's
+    result and its log."""
     mocap = "latency_s = 0.005\nlisten = true" + (f'\nkey_file = "{key_file}"' if key_file else "")
-    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": mocap})
+    cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": mocap}, **(changes or {}))
     attacker = subprocess.Popen([sys.executable, "-m", "tests.faults.hostile_mocap", "--connect", HOSTILE,
                                  "--mode", mode, "--after", str(after)], cwd=ROOT,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     log = tmp_path / f"{mode}.mcap"
     try:
-        res = fly(cfg, duration=4.5, log_path=log)
+        res = fly(cfg, duration=4.5, log_path=log, **flight)
     finally:
         attacker.kill()
         _, err = attacker.communicate(timeout=10)

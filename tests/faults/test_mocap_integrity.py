@@ -10,10 +10,16 @@ import json
 import pytest
 
 from groundstation.mocap.auth import write_key_file
+from groundstation.runtime.fly import Faults
 from tests.faults.table import Fault, bad_input, lying_mocap, rows
 from tests.faults.test_fault_table import _hostile_flight, _records
-from tests.faults.test_state_estimation import _touched_down_upright_within, _truth
-from tests.runtime.test_fly import config_with
+from tests.faults.test_state_estimation import (
+    _touched_down_upright,
+    _touched_down_upright_within,
+    _truth,
+    touchdown_speed,
+)
+from tests.runtime.test_fly import TRACK_START_S, config_with
 
 ENDPOINT = "tcp/127.0.0.1:7494"
 
@@ -111,6 +117,26 @@ def f_mocap_keyed_replay(cli, tmp_path):
     res, stats = _attacked(tmp_path, "replay-captured", keyed=True)
     assert res.phase == "done" and res.nominal, res.reason
     assert stats["rejected"] > 50 and stats["unauthenticated"] == 0 and res.metrics.pos_rmse_m < 0.03
+
+
+@lying_mocap("authenticated mocap: the genuine samples captured and, once the bridge has been silent 0.55 s, re-sent "
+             "by a publisher of its own (valid MACs; hovering, the bridge gone for good)",
+             "not taken for a restarted bridge (their stamps stale on its clock): a second publisher, never used; "
+             "the blind landing touches down on the ground, upright, under 0.85 m/s, exit 1 (before: taken, the "
+             "landing flew on old poses and the V hit the ground at 3.5 m/s)")
+def f_mocap_keyed_replay_after_the_silence(cli, tmp_path):
+    faults = Faults()
+    lost_at = TRACK_START_S + 0.5
+    res, log = _hostile_flight(tmp_path, "handover-replay", after=1.0, key_file=write_key_file(tmp_path / "k.key"),
+                               changes={'kind = "figure8"': 'kind = "hover"'}, faults=faults,
+                               on_period=lambda t: setattr(faults, "mocap_paused", t >= lost_at))
+    stats = json.loads(_records(log, "/mocap/stats")[-1][1])
+    assert stats["handovers"] == 0 and stats["foreign"] > 0 and stats["unauthenticated"] == 0, stats
+    assert res.phase == "done" and "landing blind" in res.reason, res.reason
+    truth = _truth(log)
+    assert max(z for t, _, z, _ in truth if t < lost_at) > truth[0][2] + 0.9  # lost at hover height
+    _touched_down_upright(log)
+    assert touchdown_speed(log, lost_at) < 0.85
 
 
 @bad_input("mocap on a network endpoint without key_file or TLS",

@@ -214,3 +214,40 @@ def test_a_restarted_bridge_is_taken_with_the_key_and_a_fault_without(sessions, 
     third.publish(np.array([0.5, 0.0, 1.0]), np.eye(3), time.time())
     _genuine(restarted, sub, 23, 3, x0=0.01)
     assert sub.foreign >= 1 and sub.handovers == 1 and sub.fault().startswith(f"a second publisher on {KEY}")
+
+
+def test_captured_samples_sent_again_once_the_keyed_bridge_falls_silent_are_not_a_restarted_bridge(sessions):
+    """With the key: an attacker without it records the genuine samples (MAC and all) and sends them again once the
+    bridge has been silent for the handover's 0.5 s. Their stamps are stale on the old source's clock: a second
+    publisher, a fault, never taken. Before: taken for a restarted bridge (its clock learnt from those very
+    samples), and the blind landing flew on old poses (motors off 0.9-1.1 m up, "landed"; hostile campaign 26)."""
+    a, b, c = sessions
+    key = MocapKey(bytes(range(32)))
+    sub = PoseSubscriber(b, KEY, SubscriberSettings(handover_silence_s=0.5), mac_key=key)
+    recorder = c.declare_subscriber(KEY, zenoh.handlers.FifoChannel(64))
+    genuine = PosePublisher(a, KEY, mac_key=key)
+    _genuine(genuine, sub, 0, 30)
+    genuine.close()
+    captured = []
+    deadline = time.monotonic() + 3.0
+    while len(captured) < 30 and time.monotonic() < deadline:
+        if (sample := recorder.try_recv()) is None:
+            time.sleep(0.005)
+        else:
+            captured.append((sample.payload.to_bytes(), sample.attachment.to_bytes()))
+    recorder.undeclare()
+    assert len(captured) == 30
+    silent_until = time.monotonic() + 2 * sub.settings.handover_silence_s
+    while time.monotonic() < silent_until:  # the ground station polls on through the silence, as a flight does
+        sub.poll()
+        time.sleep(0.004)
+    replayer = c.declare_publisher(KEY)
+    time.sleep(0.3)
+    for payload, attachment in captured:
+        replayer.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(replayer.id, 1))
+        time.sleep(0.01)
+        sub.poll()
+    _wait(sub, 60)
+    assert sub.unauthenticated == 0  # their MACs hold: only their age tells them
+    assert sub.handovers == 0 and sub.accepted == 30 and sub.foreign == 30, (sub.handovers, sub.last_handover)
+    assert sub.fault().startswith(f"a second publisher on {KEY}")
