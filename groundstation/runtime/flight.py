@@ -457,6 +457,8 @@ class Flight:
         """No pose is fused any more: the stream carried two sequences under one source id (a copied id)."""
         self._forgotten = 0
         """Poses taken back when the stream turned untrusted, not yet named in an event."""
+        self._rejected_before_arming = 0
+        """Samples rejected before the first period (preflight's): a stale stream's reason names only later ones."""
         self._attitude_seen_t = -math.inf
         """Capture time of the newest pose whose attitude the estimator compared, s."""
         self._disputes = 0
@@ -648,6 +650,7 @@ class Flight:
             self.before_period(t)
         if k == 0:
             self._set_phase(t, Phase.TAKEOFF, "armed")
+            self._rejected_before_arming = self.integrity().rejected
         if self.requests.stop.is_set():
             self._emergency(t, self.requests.why("operator stop"))
             return False
@@ -705,8 +708,10 @@ class Flight:
         if state is None or age > self.policy.mocap_timeout_s:
             why = f"mocap stale ({age * 1e3:.0f} ms)"
             integrity = self.integrity()
-            if integrity.rejected:
-                why += f"; {integrity.rejected} samples rejected, last: {integrity.why}"
+            if (rejected := integrity.rejected - self._rejected_before_arming) > 0:
+                # In flight only: a preflight's rejection quoted here read as the cause ("sequence jumps 83 ahead"
+                # for a stream that had simply stopped: campaign 25).
+                why += f"; {rejected} samples rejected in flight, last: {integrity.why}"
             if self.policy.on_mocap_stale == "stop" or state is None:
                 self._emergency(t, why)
                 return False

@@ -9,7 +9,7 @@ from groundstation.assembly.assembly_file import load_assembly
 from groundstation.control.trajectory import Attitude, Figure8, FlightPlan, Hover
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.runtime.closed_loop import MOCAP_WAIT_S
-from groundstation.runtime.flight import FailsafePolicy, Flight, PhysicsPoseSource
+from groundstation.runtime.flight import FailsafePolicy, Flight, MocapIntegrity, PhysicsPoseSource
 from groundstation.runtime.loop import SimClock
 from sim.pybullet_backend import PyBulletBackend
 
@@ -88,6 +88,34 @@ def test_stale_mocap_with_stop_policy():
         flight = Flight(asm, plan, ready(be), Stale(be), policy=FailsafePolicy(on_mocap_stale="stop"))
         flight.run(SimClock(be), 250.0)
     assert flight.phase == "emergency" and flight.reason.startswith("mocap stale (25")
+
+
+def test_a_stale_stream_names_only_the_rejections_in_flight():
+    """45 samples rejected before arming ("sequence jumps 83 ahead", the preflight's), then the stream stops in
+    flight: the reason says it went stale, not that those rejections caused it (campaign 25 read them so); rejections
+    in flight are named with their count."""
+    asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+
+    class Stops(PhysicsPoseSource):
+        def __init__(self, backend, rejected_in_flight):
+            super().__init__(backend)
+            self._in_flight = rejected_in_flight
+
+        def measurements(self):
+            out = super().measurements()
+            return out if self._backend.time < 2.0 else []
+
+        def integrity(self):
+            rejected = 45 + (self._in_flight if self._backend.time >= 2.0 else 0)
+            why = "sequence jumps 83 ahead" if self._backend.time < 2.0 else "moves 0.40 m in 4 ms"
+            return MocapIntegrity(rejected=rejected, why=why)
+
+    for in_flight, said in ((0, "mocap stale (25"), (7, "; 7 samples rejected in flight, last: moves 0.40 m in 4 ms")):
+        with PyBulletBackend(asm) as be:
+            plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 4.0))
+            flight = Flight(asm, plan, ready(be), Stops(be, in_flight), policy=FailsafePolicy(on_mocap_stale="stop"))
+            flight.run(SimClock(be), 250.0)
+        assert flight.phase == "emergency" and said in flight.reason and "83 ahead" not in flight.reason, flight.reason
 
 
 class ModuleStops(PyBulletBackend):
