@@ -319,8 +319,9 @@ class Replay:
 
     path: Path
     complete: bool
-    """The file ended cleanly with nothing damaged (False: cut short by a crash, or damaged; everything intact was
-    read)."""
+    """The whole flight: the file ended cleanly with nothing damaged and the flight's end in it (False: cut short by
+    a crash, damaged, a recovered copy of such a file, or finished by a writer that outlived its flight process;
+    everything intact was read)."""
     warnings: tuple[str, ...]
     """What reading skipped: one line per damaged stretch and a line of totals (empty for an intact log); then what
     could not be done for want of metadata (a re-run without the log's gains or assembly)."""
@@ -548,5 +549,7 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
             "started_s": offset}
     warnings = log.warnings + tuple(f"{n} message(s) on {topic} are not what the topic holds: skipped"
                                     for topic, n in malformed.items()) + ((not_rerun,) if not_rerun else ())
-    return Replay(Path(path), log.complete and not malformed, warnings, meta, m, events, timeline, s,
+    # Complete: the file whole and the flight's end in it. A writer left running after its flight process was killed
+    # finalizes a whole file with no end in it, which read "complete: true" beside "no end of flight" (campaign 26).
+    return Replay(Path(path), log.complete and not malformed and bool(summary), warnings, meta, m, events, timeline, s,
                   rr.stats.result() if rr else None)

@@ -157,9 +157,11 @@ def f_log_config_metadata_bit_flipped(cli, tmp_path):
     assert counts["warnings"] == named and counts["dropped"] == {"chunks": 0, "messages": 0, "by_reason": {
         "metadata": {"chunks": 0, "messages": 0}}}
     copy = tmp_path / "recovered.mcap"
-    assert _metadata_names(copy) == _metadata_names(log) - {"config"}
+    assert _metadata_names(copy) == _metadata_names(log) - {"config"} | {"recovered"}  # what it lost, said
     code, out, err = cli("replay", str(copy), "--json")
-    assert code == 0 and err == "" and json.loads(out)[0]["periods"] == expected(log).periods, err
+    copied = json.loads(out)[0]
+    assert code == 0 and copied["periods"] == expected(log).periods and not copied["complete"], err
+    assert copied["warnings"] == [f"recovered by `log recover` from {bad}, which lost: {w}" for w in named], err
 
 
 def _header_damaged(tmp_path: Path, how: str) -> Path:
@@ -186,7 +188,7 @@ def f_log_header_length_damaged(cli, tmp_path):
              f"wrong): skipped", totals(log)]
     assert _said(cli, bad, expected(log)) == named
     assert _recovered(cli, tmp_path, bad, expected(log))["warnings"] == named
-    assert _metadata_names(tmp_path / "recovered.mcap") == _metadata_names(log)
+    assert _metadata_names(tmp_path / "recovered.mcap") == _metadata_names(log) | {"recovered"}
 
 
 @process_fault("a flight log's header record zeroed (it names the program that wrote the file)",

@@ -387,7 +387,7 @@ def test_the_mocap_rate_of_a_short_window(sim_flight, tmp_path):
 
 def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
     """Both processes killed: the file ends mid-chunk. The stream reader reads up to the cut; `log recover`
-    rewrites it whole, metadata (config, code version, assembly) included."""
+    rewrites it whole, metadata (config, code version, assembly) included, and what the source lost."""
     _, log = sim_flight
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(log.read_bytes()[: int(log.stat().st_size * 0.6)])
@@ -399,7 +399,10 @@ def test_a_log_cut_short_and_its_recovered_copy(sim_flight, tmp_path):
     counts = recover(cut, recovered)
     assert not counts["source_was_complete"]
     again = analyse(recovered)
-    assert again.complete and again.metrics.periods == partial.metrics.periods
+    # whole by its own bytes, yet not the whole flight: the copy says what its source lost
+    assert not again.complete and again.metrics.periods == partial.metrics.periods
+    assert again.warnings and all(w.startswith(f"recovered by `log recover` from {cut}, which lost: ")
+                                  for w in again.warnings), again.warnings
     assert again.metadata == partial.metadata and again.metadata["code_version"]
     with open(recovered, "rb") as fh:
         names = {m.name for m in make_reader(fh).iter_metadata()}

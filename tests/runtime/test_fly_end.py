@@ -133,7 +133,7 @@ def test_a_log_without_its_end_never_replays_as_a_complete_end(tmp_path):
             w.add_message(cids[ch.id], m.log_time, m.data, m.publish_time)
         w.finish()
     r = analyse(cut)
-    assert r.complete and r.timeline[-1][1] == "settle" and r.metrics.phase == "settle"
+    assert not r.complete and r.timeline[-1][1] == "settle" and r.metrics.phase == "settle"  # whole file, no end
     assert r.metrics.reason == NO_END
 
 
