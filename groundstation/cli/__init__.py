@@ -91,7 +91,7 @@ def _run(argv: list[str] | None) -> int:
         click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
         return 0
     except click.UsageError as exc:
-        hint = f" (see 'groundstation {exc.ctx.info_name} --help')" if exc.ctx and exc.ctx.parent else ""
+        hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx and exc.ctx.parent else ""  # 'log recover' too
         click.echo(f"groundstation: error: {exc.format_message()}{hint}", err=True)
         return EXIT_BAD_INPUT
     except click.exceptions.Abort:

@@ -78,7 +78,8 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
             if not as_json:
                 Console().print(table)
             done = f"; levels 1 to {len(levels)} are complete" if levels else ""
-            click.echo(f"groundstation: enumeration stopped in level {len(levels) + 1}{done}", err=True)
+            unwritten = f"; {out_path} not written" if out_path is not None else ""  # it was asked for: say so
+            click.echo(f"groundstation: enumeration stopped in level {len(levels) + 1}{done}{unwritten}", err=True)
             raise
         if out_path is not None:
             total = sum(lv.kept for lv in levels) if out_path.suffix == ".json" else None

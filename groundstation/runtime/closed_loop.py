@@ -137,7 +137,7 @@ def volume_check(plan: FlightPlan, volume: FlightVolume) -> None:
         axes = ", ".join("xyz"[k] for k in np.flatnonzero(outside))
         raise PreflightError(f"the trajectory leaves the flight volume along {axes}: it spans "
                              f"{np.round(b.lower, 3).tolist()}..{np.round(b.upper, 3).tolist()}, the volume is "
-                             f"{list(volume.lower)}..{list(volume.upper)} (the geofence less 0.2 m)")
+                             f"{np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} (the geofence less 0.2 m)")
 
 
 def dynamics_check(model: ControlModel, plan: FlightPlan, max_speed: float, max_tilt_deg: float) -> None:

@@ -302,7 +302,8 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
         volume_check(plan, volume)
         dynamics_check(model, plan, cfg.mocap.max_speed, cfg.gains.max_tilt_deg)
     except PreflightError as exc:  # bad input: the trajectory section asks for what cannot be flown
-        raise ConfigError(str(exc), path=src, key="trajectory") from None
+        given = f" with --duration {duration:g}" if duration is not None else ""  # named: the file did not ask it
+        raise ConfigError(f"{exc}{given}", path=src, key="trajectory") from None
     key = pose_key(cfg.mocap.key_prefix, cfg.mocap.body)
     security = mocap_security(cfg.mocap, base, src)
     for issue_key, issue in load(kind.config_issues)(cfg, assembly) if kind.config_issues else ():

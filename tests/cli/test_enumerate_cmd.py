@@ -64,8 +64,9 @@ def test_absurd_options(cli, args, fragment):
     assert code == 2 and out == "" and err.count("\n") == 1 and fragment in err, err
 
 
-def test_ctrl_c_prints_the_finished_levels(cli, monkeypatch):
-    """The table mode prints the levels finished before Ctrl-C (``--json`` printed them as they came)."""
+def test_ctrl_c_prints_the_finished_levels(cli, monkeypatch, tmp_path):
+    """The table mode prints the levels finished before Ctrl-C (``--json`` printed them as they came); an ``--out``
+    asked for is said not written (campaign 26: nothing said)."""
     from groundstation.design import enumeration
 
     levels = enumeration.enumerate_levels
@@ -81,6 +82,10 @@ def test_ctrl_c_prints_the_finished_levels(cli, monkeypatch):
     assert code == 130 and "Traceback" not in err
     assert [line.split()[1] for line in out.splitlines() if line.startswith("│")] == ["1", "2", "3", "4"]
     assert "enumeration stopped in level 5; levels 1 to 4 are complete" in err
+    out_file = tmp_path / "levels.json"
+    code, out, err = cli("enumerate", "8", "--out", str(out_file))
+    assert code == 130 and f"levels 1 to 4 are complete; {out_file} not written\n" in err
+    assert not out_file.exists()
 
 
 @pytest.mark.parametrize("symmetry", ["C4", "D4", "none"])

@@ -109,3 +109,9 @@ def test_fly_simulate_and_sim_peer_run_with_stderr_closed(tmp_path):
     # both closed: nobody to tell, the status says the figures were not printed
     code, out, _ = _run_closed(["simulate", ASSEMBLY, "--duration", "0.5", "--trajectory", "hover"], (1, 2), tmp_path)
     assert code == 1 and out == ""
+
+
+def test_a_usage_error_of_a_subcommand_points_at_its_own_help(cli, tmp_path):
+    """``log recover DIR``: the hint named ``groundstation recover --help``, a command that does not exist."""
+    code, _, err = cli("log", "recover", str(tmp_path), str(tmp_path / "out.mcap"))
+    assert code == 2 and err.endswith("(see 'groundstation log recover --help')\n"), err

@@ -77,3 +77,14 @@ def test_a_roll_target_it_cannot_hover_at_is_named_with_those_it_can():
     with pytest.raises(PreflightError, match=r"^roll target 20 deg: the assembly cannot hover held at it \(best hover "
                                              r"wrench misses by .*\); it hovers at roll targets from -9.0 to 9.0 deg$"):
         hover_check(model, FlightPlan((0, 0, 0.03), Hover((0, 0, 1), 2.0, Attitude(roll=np.radians(20.0)))))
+
+
+def test_a_plan_leaving_the_volume_names_both_in_plain_numbers():
+    """A volume from a config's geofence holds numpy floats: the message read "[np.float64(-3.3), ...]"."""
+    from groundstation.runtime.closed_loop import volume_check
+
+    volume = FlightVolume(tuple(np.array([-3.3, -3.3, 0.0])), tuple(np.array([3.3, 3.3, 0.5])))
+    with pytest.raises(PreflightError) as refused:
+        volume_check(FlightPlan((0.0, 0.0, 0.0), Hover((0, 0, 1.0), 1.0)), volume)
+    assert "along z" in str(refused.value) and "np." not in str(refused.value)
+    assert "the volume is [-3.3, -3.3, 0.0]..[3.3, 3.3, 0.5]" in str(refused.value)
