@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 from dataclasses import asdict
@@ -101,9 +102,10 @@ def replay_command(logs: tuple[str, ...], as_json: bool, plot: str | None, csv_d
             click.echo(f"plot: {plot_path}", err=True)
     try:
         _print(replays, lags, as_json, t_from, t_to)
-    except OSError as exc:  # stdout on a full disk, closed, a pipe gone: one line, not a traceback
-        with contextlib.suppress(OSError):
-            click.echo(f"groundstation: cannot print the replay ({exc.strerror or exc})", err=True)
+    except OSError as exc:  # stdout on a full disk or closed: one line, not a traceback
+        if exc.errno != errno.EPIPE:  # a pipe whose reader went (`| head`) chose to stop: quiet, as every command
+            with contextlib.suppress(OSError):
+                click.echo(f"groundstation: cannot print the replay ({exc.strerror or exc})", err=True)
         stdout_lost()
         return 1
     return 0

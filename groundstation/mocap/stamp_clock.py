@@ -2,16 +2,21 @@
 
 A pose's stamp is the publisher's wall clock; the ground station times arrivals on its monotonic clock. Their
 difference ``arrival - stamp`` is the clock offset plus the transport delay (plus up to one control period, as
-arrivals are timed when polled). Its smallest recent value is the offset of the fastest path: mapping a stamp by
-it gives the sample's time on the local clock, with the stamps' precise spacing and the local clock's trust.
+arrivals are timed when polled). Its least value is the offset of the fastest path: mapping a stamp by it gives the
+sample's time on the local clock, with the stamps' precise spacing and the local clock's trust.
 
 Samples are taken when the ground station polls, so a sample's arrival is known only to lie between the poll
 before and the poll that found it. A stamp is believed only when that interval agrees with the stream's offset
 within ``max_skew_s``: a stamp far in the future (forged, a stepped publisher clock) or measured long before it
 could have arrived (a capture re-sent later) is rejected whatever it says, so it can never widen a gate that
 scales with the time between samples; a poll that came late (a busy ground station, a pause between preflight
-and take-off) is not held against the samples it finds. The offset follows slow clock drift (it is the minimum
-over a sliding window), never a jump.
+and take-off) is not held against the samples it finds.
+
+The offset is the least ``arrival - stamp`` of the stream's life, allowed to rise only as fast as two clocks drift
+apart (``max_drift``): a path that grows slower, however gradually, is late, never a new offset. Before, the least of
+a sliding 2 s window was the offset, and a delay grown by less than 25 ms/s was followed as drift: a man in the
+middle delaying the genuine samples (valid MACs) had the estimator fly on poses 30-130 ms old taken for fresh (the
+V unstable at 130 ms, blind landings 3-14 m away, 1.2 m/s touchdowns; hostile campaign 27).
 
 A sample found late (in a poll more than ``max_skew_s`` after the one before: the first poll, which finds what
 queued since the subscriber was declared, one after a pause) gives only an upper bound of the offset, too large by
@@ -24,7 +29,6 @@ good (a ground station's preflight, hostile campaign 25: rescued only by a later
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 
@@ -33,9 +37,9 @@ class StampClockSettings:
     max_skew_s: float = 0.05
     """A stamp whose ``arrival - stamp`` differs from the stream's offset by more than this is rejected, s: a
     100 Hz stream polled at 250 Hz jitters by ~5 ms on loopback; a forged or stale stamp is off by much more."""
-    window_s: float = 2.0
-    """The offset is the least ``arrival - stamp`` of the samples taken in this last stretch of arrival time, s
-    (long enough to hold a fast sample, short enough to follow a drift of 100 ppm)."""
+    max_drift: float = 5e-4
+    """How fast the offset may rise (the two clocks drifting apart), s per s: an NTP-disciplined clock slews at most
+    500 ppm, free-running crystals differ by ~100 ppm."""
 
 
 class StampClock:
@@ -43,21 +47,25 @@ class StampClock:
 
     def __init__(self, settings: StampClockSettings | None = None) -> None:
         self.settings = settings or StampClockSettings()
-        self._window: deque[tuple[float, float, float]] = deque()
-        """(arrival, offset, looseness) of taken samples, offsets increasing from the left: the sliding minimum.
-        Looseness: how much after its arrival the sample may have been found (0 when found promptly, within
-        ``max_skew_s``), s."""
+        self._floor: tuple[float, float, float] | None = None
+        """(offset, arrival, looseness) of the fastest path: the least ``arrival - stamp`` taken, whose arrival
+        started the drift allowed since. Looseness: how much after its arrival that sample may have been found (0
+        when found promptly, within ``max_skew_s``), s."""
 
     @property
     def offset(self) -> float | None:
-        """Local time minus publisher time on the fastest recent path, s (None before the first sample)."""
-        return self._window[0][1] if self._window else None
+        """Local time minus publisher time on the fastest path, s (None before the first sample)."""
+        return self._floor[0] if self._floor is not None else None
+
+    def _offset_at(self, t: float) -> float:
+        """The largest offset the clocks' drift allows at local time ``t``, s."""
+        offset, since, _ = self._floor
+        return offset + self.settings.max_drift * max(0.0, t - since)
 
     def skew(self, stamp: float, arrival: float) -> float:
-        """How much later than the fastest path a sample arriving at ``arrival`` came, s (negative: faster; 0
-        before the first)."""
-        offset = self.offset
-        return 0.0 if offset is None else (arrival - stamp) - offset
+        """How much later than the fastest path (drift allowed) a sample arriving at ``arrival`` came, s (negative:
+        faster; 0 before the first)."""
+        return 0.0 if self._floor is None else (arrival - stamp) - self._offset_at(arrival)
 
     def disagreement(self, stamp: float, earliest: float, latest: float) -> float:
         """How far the stamp is from any arrival time in [``earliest``, ``latest``] on the stream's offset, s
@@ -65,7 +73,7 @@ class StampClock:
         late, early = self.skew(stamp, earliest), self.skew(stamp, latest)
         if late > 0:
             return late
-        early += self._window[0][2] if self._window else 0.0  # an offset found late may be that much too large
+        early += self._floor[2] if self._floor is not None else 0.0  # an offset found late may be that much too large
         return early if early < 0 else 0.0
 
     def believable(self, stamp: float, earliest: float, latest: float) -> bool:
@@ -79,15 +87,12 @@ class StampClock:
 
     def take(self, stamp: float, arrival: float, earliest: float | None = None) -> None:
         """A believed sample, found at ``arrival`` (arrived after ``earliest``: the poll before; None: promptly):
-        its offset enters the window."""
+        the fastest path's offset if it is as fast (drift allowed)."""
         offset = arrival - stamp
         found = 0.0 if earliest is None else arrival - earliest
         loose = found if found > self.settings.max_skew_s else 0.0
-        w = self._window
-        while w and w[-1][1] >= offset:
-            w.pop()
-        if not loose and any(e[2] for e in w):  # found promptly: the offset is the fastest path's again
-            self._window = w = deque((a, o, 0.0) for a, o, _ in w)
-        w.append((arrival, offset, loose))
-        while w[0][0] < arrival - self.settings.window_s:
-            w.popleft()
+        floor = self._floor
+        if floor is None or offset <= self._offset_at(arrival):
+            self._floor = (offset, arrival, loose)
+        elif floor[2] and not loose:  # found promptly, no faster: the late-found offset is the fastest path's
+            self._floor = (floor[0], floor[1], 0.0)

@@ -37,3 +37,38 @@ def test_prompt_samples_keep_the_plain_bound():
     assert clock.believable(100.1, t - 0.004, t)
     assert clock.disagreement(100.1 + SKEW + 0.01, t - 0.004, t) < -SKEW
     assert clock.disagreement(100.1 - SKEW - 0.02, t - 0.004, t) > SKEW
+
+
+def _fed(clock: StampClock, seconds: float, delay, rate: float = 100.0, t0: float = 10.0) -> list[float]:
+    """Samples of a ``rate`` Hz stream for ``seconds``, each arriving ``delay(t)`` s after its stamp (clocks equal)
+    and polled promptly, taken when believed; the disagreement of each, s."""
+    seen = []
+    for k in range(int(seconds * rate)):
+        stamp = 100.0 + k / rate
+        arrival = t0 + k / rate + delay(k / rate)
+        d = clock.disagreement(stamp, arrival - 0.004, arrival)
+        seen.append(d)
+        if abs(d) <= SKEW:
+            clock.take(stamp, arrival, arrival - 0.004)
+    return seen
+
+
+def test_a_delay_that_grows_slowly_is_late_not_a_new_offset():
+    """A man in the middle delaying the genuine samples by 24 ms more each second: before, a 2 s window's least
+    offset followed it as drift and no sample was ever late (the estimator flew on poses 130 ms old taken for fresh:
+    campaign 27). Now the offset rises at most ``max_drift``: late once the delay passes ``max_skew_s``."""
+    clock = StampClock()
+    seen = _fed(clock, 6.0, lambda t: 0.005 + 0.024 * max(0.0, t - 1.0))
+    late = [k / 100.0 for k, d in enumerate(seen) if d > SKEW]
+    assert late and 1.0 + SKEW / 0.024 - 0.1 < late[0] < 1.0 + SKEW / 0.024 + 0.3  # at ~50 ms of added delay
+    assert all(d > SKEW for d in seen[int(late[0] * 100):])  # late from then on, never re-based
+
+
+def test_clocks_drifting_apart_stay_believable():
+    """The publisher's clock slower by 400 ppm (an NTP slew) for 2 minutes: 48 ms of drift, every sample believed,
+    and the offset follows (a stamp maps within a few ms of its arrival)."""
+    clock = StampClock()
+    seen = _fed(clock, 120.0, lambda t: 0.005 + 4e-4 * t)
+    assert max(abs(d) for d in seen) <= SKEW
+    stamp = 100.0 + 119.99
+    assert abs(clock.local(stamp) - (10.0 + 119.99 + 0.005 + 4e-4 * 119.99)) < 0.005
