@@ -77,11 +77,12 @@ def _injected(faults: Faults, name: str, value, at: float = TRACK_START_S + 2.5)
 
 
 @contextlib.contextmanager
-def _cuttable(tmp_path):
-    """Simulated Crazyflie modules whose mocap reaches the ground station through a TCP relay that a SIGUSR1
-    cuts for 300 ms; yields the flight config and the relay process."""
+def _cuttable(tmp_path, *relay_args: str):
+    """Simulated Crazyflie modules whose mocap reaches the ground station through a TCP relay (``sim.tcp_relay``:
+    SIGUSR1 cuts it for 300 ms, SIGUSR2 starts the delay ``relay_args`` give); yields the flight config and the
+    relay process."""
     relay = subprocess.Popen([sys.executable, "-m", "sim.tcp_relay", "--listen", str(RELAY_PORT), "--target",
-                              str(MOCAP_PORT), "--cut-for", "0.3"], stdout=subprocess.PIPE, text=True)
+                              str(MOCAP_PORT), "--cut-for", "0.3", *relay_args], stdout=subprocess.PIPE, text=True)
     peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
                         "--mocap", f"tcp/127.0.0.1:{MOCAP_PORT}", "--params",
                         str(ROOT / "firmware_params/crazyflie.toml"))
@@ -119,6 +120,34 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
     stamps = np.array([p.timestamp.seconds + p.timestamp.nanos * 1e-9 for p in poses])
     gap = float(np.diff(stamps).max())
     assert 0.3 <= gap < 0.8, gap  # the cut, and the reconnection within half a second of its end (Zenoh: 1-4 s)
+
+
+@estimate_fault("mocap: a man in the middle delaying the stream to simulated Crazyflie modules by 24 ms more each "
+                "second, to 150 ms, from tracking (a TCP relay holding back what the bridge sends, in order)",
+                "late past 50 ms on the stream's fastest path (never followed as drift): rejected, named; a blind "
+                "landing on the ground, upright (the last poses, late, show it), exit 1 (before: followed, the V flew "
+                "on poses 130 ms old: unstable, blind landings 3-14 m away)")
+def f_mocap_delay_growing(cli, tmp_path):
+    with _cuttable(tmp_path, "--delay-growth", "24", "--delay-max", "150") as (cfg, relay):
+        began = []
+
+        def on_period(t):
+            if t >= TRACK_START_S + 1.0 and not began:
+                began.append(t)
+                relay.send_signal(signal.SIGUSR2)
+
+        log = tmp_path / "late.mcap"
+        res = fly(cfg, duration=6.0, log_path=log, on_period=on_period)
+        relay.terminate()
+        stats = json.loads(relay.communicate(timeout=10)[0].strip().splitlines()[-1])
+    assert stats["delay_began_s"] is not None
+    assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason, res.reason
+    assert "ms off its arrival time" in res.reason, res.reason  # late, not a stream that stopped
+    poses = [PoseInFrame.FromString(d) for _, d in _records(log, "/mocap/assembly")]
+    assert max(_tilt_deg((p.pose.orientation.x, p.pose.orientation.y)) for p in poses) < 15.0
+    assert abs(poses[-1].pose.position.z - poses[0].pose.position.z) < 0.03  # on the ground it took off from
+    # not flown away: within 0.4 m of the figure-8's reach (0.6 m; 3-14 m away before)
+    assert np.hypot(poses[-1].pose.position.x, poses[-1].pose.position.y) < 1.0
 
 
 @estimate_fault("mocap: no pose for 1 s in tracking (dry run)",
