@@ -95,23 +95,29 @@ def _cuttable(tmp_path, *relay_args: str):
             p.wait(10)
 
 
+def _relayed_flight(cfg, relay, sig: int, at: float, duration: float, log):
+    """Fly ``cfg`` for ``duration`` s of tracking, sending the relay ``sig`` in the first period from ``at`` s; the
+    result and the relay's own counts (printed as it ends)."""
+    sent = []
+
+    def on_period(t):
+        if t >= at and not sent:
+            sent.append(t)
+            relay.send_signal(sig)
+
+    res = fly(cfg, duration=duration, log_path=log, on_period=on_period)
+    relay.terminate()
+    return res, json.loads(relay.communicate(timeout=10)[0].strip().splitlines()[-1])
+
+
 @estimate_fault("mocap: the Zenoh TCP link to simulated Crazyflie modules cut for 300 ms in tracking (a relay resets "
                 "every connection and refuses new ones)",
                 "the session reconnects by itself; the flight lands blind on its estimate when the poses go stale and "
                 "on the poses again once they are back; tilt below 15 deg, exit 1")
 def f_zenoh_link_cut_300ms(cli, tmp_path):
+    log = tmp_path / "cut.mcap"
     with _cuttable(tmp_path) as (cfg, relay):
-        cut = []
-
-        def on_period(t):
-            if t >= TRACK_START_S + 2.5 and not cut:
-                cut.append(t)
-                relay.send_signal(signal.SIGUSR1)
-
-        log = tmp_path / "cut.mcap"
-        res = fly(cfg, duration=4.0, log_path=log, on_period=on_period)
-        relay.terminate()
-        stats = json.loads(relay.communicate(timeout=10)[0].strip().splitlines()[-1])
+        res, stats = _relayed_flight(cfg, relay, signal.SIGUSR1, TRACK_START_S + 2.5, 4.0, log)
     assert stats["cut_began_s"] is not None and stats["accepted"] >= 2  # cut, and connected again after it
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
     poses = [PoseInFrame.FromString(d) for _, d in _records(log, "/mocap/assembly")]
@@ -128,18 +134,9 @@ def f_zenoh_link_cut_300ms(cli, tmp_path):
                 "landing on the ground, upright (the last poses, late, show it), exit 1 (before: followed, the V flew "
                 "on poses 130 ms old: unstable, blind landings 3-14 m away)")
 def f_mocap_delay_growing(cli, tmp_path):
+    log = tmp_path / "late.mcap"
     with _cuttable(tmp_path, "--delay-growth", "24", "--delay-max", "150") as (cfg, relay):
-        began = []
-
-        def on_period(t):
-            if t >= TRACK_START_S + 1.0 and not began:
-                began.append(t)
-                relay.send_signal(signal.SIGUSR2)
-
-        log = tmp_path / "late.mcap"
-        res = fly(cfg, duration=6.0, log_path=log, on_period=on_period)
-        relay.terminate()
-        stats = json.loads(relay.communicate(timeout=10)[0].strip().splitlines()[-1])
+        res, stats = _relayed_flight(cfg, relay, signal.SIGUSR2, TRACK_START_S + 1.0, 6.0, log)
     assert stats["delay_began_s"] is not None
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason, res.reason
     assert "ms off its arrival time" in res.reason, res.reason  # late, not a stream that stopped
