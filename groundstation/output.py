@@ -82,8 +82,10 @@ class GuardedStdout:
 
 def stdout_lost() -> None:
     """Stdout failed and the command said so on stderr: from here what is printed goes to /dev/null (Python's own
-    flush at exit would fail once more, with a traceback and status 120)."""
-    sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (the process's, to its end)
+    flush at exit would fail once more, with a traceback and status 120). Only the command line's own stdout
+    (:func:`hold_standard_descriptors`): an in-process caller's is its own."""
+    if isinstance(sys.stdout, GuardedStdout):
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (the process's, to its end)
 
 
 def hold_standard_descriptors() -> None:

@@ -9,6 +9,7 @@ be reached or refuse to arm), 130 on Ctrl-C.
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import signal
 import sys
@@ -88,7 +89,11 @@ def _run(argv: list[str] | None) -> int:
     try:
         rv = cli.main(args=argv, prog_name="groundstation", standalone_mode=False)
     except click.exceptions.NoArgsIsHelpError as exc:  # bare command: show help, like click does
-        click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
+        try:
+            click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
+        except StdoutError as lost:  # raised in this handler, the one beside it would not catch it
+            _say_not_printed(lost)
+            return EXIT_FAILED
         return 0
     except click.UsageError as exc:
         hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx and exc.ctx.parent else ""  # 'log recover' too
@@ -114,6 +119,7 @@ def _run(argv: list[str] | None) -> int:
 
 def _say_not_printed(exc: StdoutError) -> None:
     """One line on stderr: what the command printed did not reach stdout (a full device, closed, a pipe gone)."""
-    with contextlib.suppress(OSError):  # stderr may be as broken: then the exit status says it
-        click.echo(f"groundstation: error: cannot print the output ({exc.strerror})", err=True)
+    if exc.errno != errno.EPIPE:  # a reader that went (`| head`) chose to stop: quiet, as click has it
+        with contextlib.suppress(OSError):  # stderr may be as broken: then the exit status says it
+            click.echo(f"groundstation: error: cannot print the output ({exc.strerror})", err=True)
     stdout_lost()

@@ -109,13 +109,7 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
             live.stop()
     try:
         status = _report(flight, result, as_json)
-    except OSError as exc:
-        # Output that cannot be written (stdout on a full disk, a pipe or terminal gone) must not turn a flight
-        # into a traceback: its summary is in the log.
-        with contextlib.suppress(OSError):
-            click.echo(f"groundstation: cannot print the flight's summary ({exc.strerror or exc}); it is in the "
-                       f"log {result.log_path}", err=True)
-        stdout_lost()
+    except OSError:  # stderr gone too (a terminal hung up): nobody to tell, the status says it
         status = _status(result)
     _end_on_signal(LANDING_SIGNALS, status, now=bool(held))
     return status
@@ -163,21 +157,15 @@ def _report(flight: str, result, as_json: bool) -> int:
     # and a script reading only the JSON must see why.
     summary = {"phase": result.phase, "reason": result.reason, "degraded": list(result.degraded),
                "log": str(result.log_path), "log_error": result.log_error, **asdict(result.metrics)}
-    if as_json:
-        click.echo(json.dumps(json_safe(summary)))
-    else:
-        table = Table(title=f"Flight {flight}", show_header=False)
-        for k in ("phase", "reason", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
-                  "max_roll_error_deg", "max_motor_fraction"):
-            v = summary[k]
-            table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
-        if result.degraded:
-            table.add_row("degraded", "; ".join(result.degraded))
-        loop = result.metrics.loop
-        if loop is not None:
-            table.add_row("loop", f"{loop.rate_hz:.0f} Hz, p99 start error {loop.start_error_ms_p99:.3f} ms, "
-                                  f"{loop.overruns} overruns")
-        Console().print(table)
+    try:
+        _print_summary(flight, summary, result, as_json)
+    except OSError as exc:
+        # Stdout on a full disk, closed, a pipe or terminal gone: one line, and the stderr lines below still say
+        # why the flight ended (skipped with the summary, they left only "cannot print").
+        with contextlib.suppress(OSError):
+            click.echo(f"groundstation: cannot print the flight's summary ({exc.strerror or exc}); it is in the "
+                       f"log {result.log_path}", err=True)
+        stdout_lost()
     click.echo(f"log: {result.log_path}", err=True)
     if result.log_rejected:
         click.echo("groundstation: warning: messages the log writer rejected (counted, not written): " +
@@ -194,6 +182,25 @@ def _report(flight: str, result, as_json: bool) -> int:
     elif result.degraded:
         click.echo(f"groundstation: the flight degraded beyond its bounds: {'; '.join(result.degraded)}", err=True)
     return _status(result)
+
+
+def _print_summary(flight: str, summary: dict, result, as_json: bool) -> None:
+    """The flight's summary on stdout: one JSON object, or a table."""
+    if as_json:
+        click.echo(json.dumps(json_safe(summary)))
+        return
+    table = Table(title=f"Flight {flight}", show_header=False)
+    for k in ("phase", "reason", "pos_rmse_m", "max_pos_error_m", "max_orientation_error_deg",
+              "max_roll_error_deg", "max_motor_fraction"):
+        v = summary[k]
+        table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+    if result.degraded:
+        table.add_row("degraded", "; ".join(result.degraded))
+    loop = result.metrics.loop
+    if loop is not None:
+        table.add_row("loop", f"{loop.rate_hz:.0f} Hz, p99 start error {loop.start_error_ms_p99:.3f} ms, "
+                              f"{loop.overruns} overruns")
+    Console().print(table)
 
 
 @click.group("log")

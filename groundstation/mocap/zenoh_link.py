@@ -237,13 +237,17 @@ class PoseSubscriber:
 
     def poll(self) -> int:
         """Take every buffered sample in arrival order; returns how many arrived since the last poll."""
-        n = 0
         with self._lock:
+            found = []
+            while self._sub is not None and (sample := self._sub.try_recv()) is not None:
+                found.append(sample)
+            # Timed after the drain: a sample that arrived while it ran (the process descheduled in it) must not be
+            # timed before its arrival, which would look faster than the fastest path and lower the stream's offset.
             now = self._clock()
             before, self._polled = self._polled, now  # what is found now arrived after ``before``
-            while self._sub is not None and (sample := self._sub.try_recv()) is not None:
-                n += 1
+            for sample in found:
                 self._accept(sample, now, before)
+            n = len(found)
             # Timed once the poll is done: a burst found at once all "arrived" now, and the last of it says best
             # how late that is (the stream's offset after it).
             lat = self.settings.latency
@@ -295,7 +299,16 @@ class PoseSubscriber:
             return
         info = sample.source_info
         source = str(info.source_id) if info is not None else "unidentified"
-        if self._source is not None and source != self._source and self._may_hand_over(pose, before, now):
+        if self._source is not None and source != self._source and self._may_hand_over(now):
+            if not self._stamps.believable(pose.stamp, before, now):
+                # Stale on the old source's clock (captured samples sent again, a bridge whose first samples
+                # stalled): not taken, and not a second publisher either, so a fresh sample of a restarted bridge
+                # after it still hands over (counted as foreign, one stalled sample kept a restart out for good).
+                self.rejected += 1
+                self.bad_stamps += 1
+                off = self._stamps.disagreement(pose.stamp, before, now)
+                self.last_rejection = f"a new publisher's stamp {off * 1e3:+.0f} ms off the source's clock"
+                return
             self._hand_over(now)
         if self._source is None:
             self._source = source
@@ -351,18 +364,17 @@ class PoseSubscriber:
                 self._cadence += 0.05 * ((pose.stamp - last.stamp) / (pose.sequence - last.sequence) - self._cadence)
         self._take(pose, now, before)
 
-    def _may_hand_over(self, pose: PoseSample, before: float, now: float) -> bool:
-        """``pose``, of another publisher, found at ``now`` (arrived after ``before``), may start a new source: it
-        carries the key's MAC (it decoded), no second publisher was ever seen beside the source, the source has been
-        silent for ``handover_silence_s``, and its stamp is fresh on the old source's clock (a restarted bridge
-        stamps on the same host's clock). A MAC proves who made a sample, not when it is sent: samples captured
-        from the genuine bridge and sent again once it fell silent were taken for a restarted bridge, their
-        stamps judged on a clock learnt from them alone, and the blind landing flew on the old poses (motors off
-        0.9-1.1 m up, "landed"; in SITL the V climbed to 3 m; hostile campaign 26). A bridge restarted on a clock
-        off by more than ``stamps.max_skew_s`` is a second publisher: the flight lands on its estimate."""
+    def _may_hand_over(self, now: float) -> bool:
+        """A sample of another publisher, found at ``now``, may start a new source: it carries the key's MAC (it
+        decoded), no second publisher was ever seen beside the source, and the source has been silent for
+        ``handover_silence_s``. Its stamp must then be fresh on the old source's clock (a restarted bridge stamps
+        on the same host's clock; :meth:`_accept`): a MAC proves who made a sample, not when it is sent. Samples
+        captured from the genuine bridge and sent again once it fell silent were taken for a restarted bridge,
+        their stamps judged on a clock learnt from them alone, and the blind landing flew on the old poses
+        (motors off 0.9-1.1 m up, "landed"; in SITL the V climbed to 3 m; hostile campaign 26). A bridge
+        restarted on a clock off by more than ``stamps.max_skew_s`` is never taken: the flight lands blind."""
         return (self._mac_key is not None and not self.foreign
-                and now - self._source_heard >= self.settings.handover_silence_s
-                and self._stamps.believable(pose.stamp, before, now))
+                and now - self._source_heard >= self.settings.handover_silence_s)
 
     def _hand_over(self, now: float) -> None:
         """Forget the old source: the new one is taken as the first was (its sequence its own); its stamps go on

@@ -280,12 +280,12 @@ def f_stdout_full(cli, tmp_path):
 
 
 @process_fault("every command's stdout on a full device (/dev/full), closed (>&-) or a pipe whose reader went: "
-               "--version, enumerate 3, simulate --json",
+               "bare groundstation, --version, enumerate 3, simulate --json",
                "full or closed: one line on stderr, 'cannot print the output (...)', exit 1 (before: a traceback "
                "on /dev/full, nothing and exit 0 with stdout closed); the pipe: exit 1, quiet (click's way: the "
                "reader chose to stop, as `| head` does)")
 def f_stdout_of_every_command_lost(cli, tmp_path):
-    commands = (["--version"], ["enumerate", "3"],
+    commands = ([], ["--version"], ["enumerate", "3"],  # bare: its help (printed in an exception handler)
                 ["simulate", str(ROOT / "configs/assemblies/toy_v2.json"), "--trajectory", "hover", "--duration",
                  "0.5", "--json"])
     for args in commands:

@@ -218,9 +218,10 @@ def test_a_restarted_bridge_is_taken_with_the_key_and_a_fault_without(sessions, 
 
 def test_captured_samples_sent_again_once_the_keyed_bridge_falls_silent_are_not_a_restarted_bridge(sessions):
     """With the key: an attacker without it records the genuine samples (MAC and all) and sends them again once the
-    bridge has been silent for the handover's 0.5 s. Their stamps are stale on the old source's clock: a second
-    publisher, a fault, never taken. Before: taken for a restarted bridge (its clock learnt from those very
-    samples), and the blind landing flew on old poses (motors off 0.9-1.1 m up, "landed"; hostile campaign 26)."""
+    bridge has been silent for the handover's 0.5 s. Their stamps are stale on the old source's clock: bad stamps,
+    never taken. Before: taken for a restarted bridge (its clock learnt from those very samples), and the blind
+    landing flew on old poses (motors off 0.9-1.1 m up, "landed"; hostile campaign 26). The bridge restarted after
+    them (fresh stamps) is still taken: had they counted as a second publisher, it never would be."""
     a, b, c = sessions
     key = MocapKey(bytes(range(32)))
     sub = PoseSubscriber(b, KEY, SubscriberSettings(handover_silence_s=0.5), mac_key=key)
@@ -249,5 +250,10 @@ def test_captured_samples_sent_again_once_the_keyed_bridge_falls_silent_are_not_
         sub.poll()
     _wait(sub, 60)
     assert sub.unauthenticated == 0  # their MACs hold: only their age tells them
-    assert sub.handovers == 0 and sub.accepted == 30 and sub.foreign == 30, (sub.handovers, sub.last_handover)
-    assert sub.fault().startswith(f"a second publisher on {KEY}")
+    assert sub.handovers == 0 and sub.accepted == 30 and sub.bad_stamps == 30, (sub.handovers, sub.last_handover)
+    assert sub.last_rejection.startswith("a new publisher's stamp +") and sub.foreign == 0 and not sub.fault()
+    restarted = PosePublisher(a, KEY, mac_key=key)
+    time.sleep(0.3)
+    _genuine(restarted, sub, 60, 10, x0=0.01)
+    assert sub.handovers == 1 and sub.accepted == 40 and not sub.fault()
+    np.testing.assert_allclose(sub.latest().position, [0.01, 0.0, 1.0])

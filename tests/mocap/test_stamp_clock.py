@@ -72,3 +72,24 @@ def test_clocks_drifting_apart_stay_believable():
     assert max(abs(d) for d in seen) <= SKEW
     stamp = 100.0 + 119.99
     assert abs(clock.local(stamp) - (10.0 + 119.99 + 0.005 + 4e-4 * 119.99)) < 0.005
+
+
+def test_a_silence_does_not_make_the_same_path_from_the_future():
+    """The drift allowed since the fastest path was seen bounds how much later a sample may come, not how much
+    earlier: measured on it, every sample after 101 s of silence was "from the future" (review)."""
+    clock = StampClock()
+    _fed(clock, 1.0, lambda t: 0.005)
+    stamp, arrival = 100.0 + 1.0 + 300.0, 10.0 + 1.0 + 300.0 + 0.005
+    assert abs(clock.disagreement(stamp, arrival - 0.004, arrival)) < 1e-9  # before: -0.15 s, rejected
+
+
+def test_clocks_drifting_faster_than_allowed_are_late_before_they_are_mis_timed():
+    """600 ppm (beyond the 500 allowed): the stamps mapped as they are judged, so a sample is either within
+    ``max_skew_s`` of its time or rejected; mapped by the fastest path alone, they were 70 ms off after 2 minutes,
+    every one believed (review)."""
+    clock = StampClock()
+    seen = _fed(clock, 120.0, lambda t: 0.005 + 6e-4 * t)
+    for k in range(0, 12000, 500):
+        if abs(seen[k]) <= SKEW:
+            stamp = 100.0 + k / 100.0
+            assert abs(clock.local(stamp) - (10.0 + k / 100.0 + 0.005 + 6e-4 * k / 100.0)) <= SKEW
