@@ -300,14 +300,10 @@ class PoseSubscriber:
         info = sample.source_info
         source = str(info.source_id) if info is not None else "unidentified"
         if self._source is not None and source != self._source and self._may_hand_over(now):
-            if not self._stamps.believable(pose.stamp, before, now):
-                # Stale on the old source's clock (captured samples sent again, a bridge whose first samples
-                # stalled): not taken, and not a second publisher either, so a fresh sample of a restarted bridge
-                # after it still hands over (counted as foreign, one stalled sample kept a restart out for good).
-                self.rejected += 1
-                self.bad_stamps += 1
-                off = self._stamps.disagreement(pose.stamp, before, now)
-                self.last_rejection = f"a new publisher's stamp {off * 1e3:+.0f} ms off the source's clock"
+            # Stale on the old source's clock (captured samples sent again, a bridge whose first samples stalled):
+            # not taken, and not a second publisher either, so a fresh sample of a restarted bridge after it still
+            # hands over (counted as foreign, one stalled sample kept a restart out for good).
+            if self._bad_stamp(pose, before, now, "a new publisher's stamp {} ms off the source's clock"):
                 return
             self._hand_over(now)
         if self._source is None:
@@ -325,11 +321,7 @@ class PoseSubscriber:
             # Not a sample behind the stream (a replay or a second sender would be): the same one again.
             self.duplicates += 1
             return
-        if not self._stamps.believable(pose.stamp, before, now):
-            self.rejected += 1
-            self.bad_stamps += 1
-            off = self._stamps.disagreement(pose.stamp, before, now)
-            self.last_rejection = f"stamp {off * 1e3:+.0f} ms off its arrival time"
+        if self._bad_stamp(pose, before, now, "stamp {} ms off its arrival time"):
             return
         last = self._last
         if last is not None:
@@ -363,6 +355,16 @@ class PoseSubscriber:
             if not self._conflicts:  # the stream's own rate, learnt while a single sender is seen
                 self._cadence += 0.05 * ((pose.stamp - last.stamp) / (pose.sequence - last.sequence) - self._cadence)
         self._take(pose, now, before)
+
+    def _bad_stamp(self, pose: PoseSample, before: float, now: float, why: str) -> bool:
+        """Whether ``pose``'s stamp disagrees with its arrival (after ``before``, by ``now``); if so it is counted,
+        and ``why`` (its ``{}`` the disagreement, ms) is the last rejection."""
+        if self._stamps.believable(pose.stamp, before, now):
+            return False
+        self.rejected += 1
+        self.bad_stamps += 1
+        self.last_rejection = why.format(f"{self._stamps.disagreement(pose.stamp, before, now) * 1e3:+.0f}")
+        return True
 
     def _may_hand_over(self, now: float) -> bool:
         """A sample of another publisher, found at ``now``, may start a new source: it carries the key's MAC (it
