@@ -74,7 +74,6 @@ def main(argv: list[str] | None = None) -> None:
         except StdoutError as exc:
             _say_not_printed(exc)
             rv = rv or EXIT_FAILED
-    if argv is None:
         # The command's work is done: a signal while the interpreter exits must not change its status. Late in
         # its exit Python puts the default handlers back (not where they are ignored), and a SIGTERM there ended
         # a finished flight 143 after its summary said "done" (hostile campaign). Blocking them would not do: Zenoh's
