@@ -16,7 +16,10 @@ The offset is the least ``arrival - stamp`` of the stream's life, allowed to ris
 apart (``max_drift``): a path that grows slower, however gradually, is late, never a new offset. Before, the least of
 a sliding 2 s window was the offset, and a delay grown by less than 25 ms/s was followed as drift: a man in the
 middle delaying the genuine samples (valid MACs) had the estimator fly on poses 30-130 ms old taken for fresh (the
-V unstable at 130 ms, blind landings 3-14 m away, 1.2 m/s touchdowns; hostile campaign 27).
+V unstable at 130 ms, blind landings 3-14 m away, 1.2 m/s touchdowns; hostile campaign 27). Nor may it rise by
+more than ``max_rise_s`` in all over the stream's life (above its least): a delay grown more slowly than clocks
+drift was followed without that bound, 27 ms after a minute and 130 ms after five; with it, at most ``max_rise_s``
+of a delay is ever taken for the clocks, the rest is the pose's age, and beyond ``max_skew_s`` more it is late.
 
 A sample found late (in a poll more than ``max_skew_s`` after the one before: the first poll, which finds what
 queued since the subscriber was declared, one after a pause) gives only an upper bound of the offset, too large by
@@ -40,6 +43,9 @@ class StampClockSettings:
     max_drift: float = 5e-4
     """How fast the offset may rise (the two clocks drifting apart), s per s: an NTP-disciplined clock slews at most
     500 ppm, free-running crystals differ by ~100 ppm."""
+    max_rise_s: float = 0.02
+    """How far the offset may rise in all above the least of the stream's life (the clocks drifting apart over a
+    flight), s: the most of a slowly grown delay ever taken for drift, not for the poses' age."""
 
 
 class StampClock:
@@ -47,6 +53,8 @@ class StampClock:
 
     def __init__(self, settings: StampClockSettings | None = None) -> None:
         self.settings = settings or StampClockSettings()
+        self._least: float | None = None
+        """The least offset of the stream's life, s: the offset never rises more than ``max_rise_s`` above it."""
         self._floor: tuple[float, float, float] | None = None
         """(offset, arrival, looseness) of the fastest path: the least ``arrival - stamp`` taken, whose arrival
         started the drift allowed since. Looseness: how much after its arrival that sample may have been found (0
@@ -60,7 +68,8 @@ class StampClock:
     def _offset_at(self, t: float) -> float:
         """The largest offset the clocks' drift allows at local time ``t``, s."""
         offset, since, _ = self._floor
-        return offset + self.settings.max_drift * max(0.0, t - since)
+        s = self.settings
+        return min(offset + s.max_drift * max(0.0, t - since), self._least + s.max_rise_s)
 
     def skew(self, stamp: float, arrival: float) -> float:
         """How much later than the fastest path (drift allowed) a sample arriving at ``arrival`` came, s (negative:
@@ -100,5 +109,6 @@ class StampClock:
         floor = self._floor
         if floor is None or offset <= self._offset_at(arrival):
             self._floor = (offset, arrival, loose)
+            self._least = offset if self._least is None else min(self._least, offset)
         elif floor[2] and not loose:  # found promptly, no faster: the late-found offset is the fastest path's
             self._floor = (floor[0], floor[1], 0.0)

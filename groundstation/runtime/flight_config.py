@@ -28,6 +28,7 @@ from groundstation.backends.section import BackendSection, SimSection
 from groundstation.control.geometric import Gains
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.estimation.filter import EstimatorSettings
+from groundstation.mocap.stamp_clock import StampClockSettings
 from groundstation.runtime.flight import MAX_BLIND_DESCENT_MPS, MAX_HEIGHT_SIGMA_M, FailsafePolicy, QualityBounds
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -155,6 +156,12 @@ class MocapSection:
     ``failsafe.mocap_timeout_s``: :func:`bound_issues`): the estimator times each pose this long before its stamp
     on the local clock (a mocap bridge stamps when it gets the frame: the camera system's own latency, a few ms),
     and simulated mocap delivers its poses this late."""
+    clock_drift_s: float = Field(StampClockSettings.max_rise_s, ge=0, le=StampClockSettings.max_skew_s)
+    """How far the mocap host's clock may drift from this one's over a flight, s: 0 with the bridge on this host,
+    a few ms with both hosts on NTP (chrony); free-running clocks drift apart up to ~6 ms a minute. The stream's
+    clock offset rises at most this much in all: a delay grown slowly on the path (a man in the middle) is taken
+    for drift only this far, beyond it the poses are known to be late and past ``max_skew_s`` (50 ms) more they are
+    rejected: a blind landing. At most 50 ms: more would let a delay that long pass as drift."""
     max_speed: float = Field(10.0, gt=0, le=MAX_MOCAP_SPEED)
     """Poses implying faster motion than this are rejected as outliers, m/s (at most :data:`MAX_MOCAP_SPEED`)."""
     preflight_watch_s: float = Field(1.0, ge=0.2, le=2.0)

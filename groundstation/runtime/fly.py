@@ -50,6 +50,7 @@ from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import WRITER_START_S, FlightLog, claim
 from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.auth import MocapKey
+from groundstation.mocap.stamp_clock import StampClockSettings
 from groundstation.mocap.zenoh_link import (
     PoseSubscriber,
     Security,
@@ -400,7 +401,9 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
                                                            p.security, p.mac_key))
             gs_session = open_session(listen=ours, connect=theirs, security=p.security)
             stack.callback(gs_session.close)
-            sub = PoseSubscriber(gs_session, p.key, SubscriberSettings(max_speed=m.max_speed, latency=m.latency_s),
+            stamps = StampClockSettings(max_rise_s=m.clock_drift_s)
+            sub = PoseSubscriber(gs_session, p.key,
+                                 SubscriberSettings(max_speed=m.max_speed, latency=m.latency_s, stamps=stamps),
                                  mac_key=p.mac_key)
             stack.callback(sub.close)
             log = FlightLog(p.log_file, {"config": json.dumps(asdict(p.cfg)), "config_path": p.src,

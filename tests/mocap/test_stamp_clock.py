@@ -65,13 +65,35 @@ def test_a_delay_that_grows_slowly_is_late_not_a_new_offset():
 
 
 def test_clocks_drifting_apart_stay_believable():
-    """The publisher's clock slower by 400 ppm (an NTP slew) for 2 minutes: 48 ms of drift, every sample believed,
-    and the offset follows (a stamp maps within a few ms of its arrival)."""
+    """The publisher's clock slower by 100 ppm (free-running crystals) for 3 minutes: 18 ms of drift, within
+    ``max_rise_s``: every sample believed, and the offset follows (a stamp maps within a few ms of its arrival)."""
     clock = StampClock()
-    seen = _fed(clock, 120.0, lambda t: 0.005 + 4e-4 * t)
+    seen = _fed(clock, 180.0, lambda t: 0.005 + 1e-4 * t)
     assert max(abs(d) for d in seen) <= SKEW
-    stamp = 100.0 + 119.99
-    assert abs(clock.local(stamp) - (10.0 + 119.99 + 0.005 + 4e-4 * 119.99)) < 0.005
+    stamp = 100.0 + 179.99
+    assert abs(clock.local(stamp) - (10.0 + 179.99 + 0.005 + 1e-4 * 179.99)) < 0.005
+
+
+def test_a_delay_grown_more_slowly_than_drift_is_followed_only_max_rise_s():
+    """A man in the middle adding 0.4 ms each second (slower than the drift allowed): before, followed for good
+    (130 ms after 5 minutes, the poses taken for fresh). Now the offset rises at most ``max_rise_s`` in all: a pose
+    is never mapped more than that after the time it left the publisher on the stream's first path, and once the
+    delay is ``max_skew_s`` beyond that, the samples are late from then on."""
+    clock = StampClock()
+    rise, late, mapped_after = clock.settings.max_rise_s, [], []
+    for k in range(20000):  # 200 s at 100 Hz, polled promptly
+        stamp, sent = 100.0 + k / 100.0, 10.0 + k / 100.0
+        arrival = sent + 0.005 + 4e-4 * k / 100.0
+        d = clock.disagreement(stamp, arrival - 0.004, arrival)
+        if abs(d) <= SKEW:
+            clock.take(stamp, arrival, arrival - 0.004)
+            mapped_after.append(clock.local(stamp) - (sent + 0.005))  # how much fresher than it is it looks
+        elif d > SKEW:
+            late.append(k / 100.0)
+    assert max(mapped_after) <= rise + 1e-9
+    expected = (rise + SKEW + 0.004) / 4e-4  # 185 s (it may have arrived at the poll before: 4 ms)
+    assert late and expected - 1.0 < late[0] < expected + 1.0
+    assert len(late) == 20000 - int(late[0] * 100)  # late from then on, never re-based
 
 
 def test_a_silence_does_not_make_the_same_path_from_the_future():

@@ -202,6 +202,15 @@ def test_a_preflight_watch_too_short_to_see_a_second_publisher_or_beyond_the_wai
         config.validate(FlightConfig, {"assembly": "x", "mocap": {"preflight_watch_s": value}})
 
 
+@pytest.mark.parametrize("value, bound", [(-0.001, "greater than or equal to 0"),
+                                          (0.051, "less than or equal to 0.05")])
+def test_a_clock_drift_that_would_let_a_delay_pass_as_drift_is_refused(value, bound):
+    """More than the 50 ms a stamp may disagree with its arrival would let a man in the middle add that much delay,
+    grown slowly, with the poses taken for fresh."""
+    with pytest.raises(ConfigError, match=rf"mocap.clock_drift_s: .*{bound}"):
+        config.validate(FlightConfig, {"assembly": "x", "mocap": {"clock_drift_s": value}})
+
+
 def test_cross_key_bounds_just_inside():
     toy, _ = load_assembly(TOY)
     assert _issue(FlightConfig(assembly="x"), toy.inertia, mocap={"latency_s": 0.23}, trajectory={"roll_deg": 44.9},
