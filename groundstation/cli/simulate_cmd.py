@@ -23,7 +23,7 @@ from groundstation.cli.common import (
     stderr_console,
     writable_output,
 )
-from groundstation.errors import ConfigError, UsageError
+from groundstation.errors import ConfigError, PreflightError, UsageError
 
 EXIT_CRASHED = 1
 ROWS = ("phase", "reason", "simulated_s", "pos_rmse_m", "pos_rmse_xyz_m", "max_pos_error_m", "max_pos_error_xyz_m",
@@ -67,8 +67,9 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
     import numpy as np
 
     from groundstation.control.geometric import Gains
+    from groundstation.control.model import ControlModel
     from groundstation.control.trajectory import FlightPlan, make_track
-    from groundstation.runtime.closed_loop import FlightVolume, fly_simulated
+    from groundstation.runtime.closed_loop import FlightVolume, dynamics_check, fly_simulated
     from groundstation.runtime.flight_config import estimator_settings
     from sim.pybullet_backend import PyBulletBackend, SimConfig
 
@@ -80,6 +81,12 @@ def simulate_command(assembly: str, trajectory: str, duration: float, height: fl
                        "roll_deg": roll}})
     t, m = cfg.trajectory, cfg.mocap
     track = make_track(t.kind, t.duration, t.height, t.size, t.period, t.roll_deg)
+    model = ControlModel.from_assembly(asm)
+    try:  # here, to name the options (fly_simulated checks it again after PyBullet started, for its other callers)
+        dynamics_check(model, FlightPlan((0.0, 0.0, asm.resting_height), track), np.inf, cfg.gains.max_tilt_deg)
+    except PreflightError as exc:
+        raise UsageError(f"{exc} (--trajectory {t.kind} --duration {t.duration:g} --height {t.height:g} "
+                         f"--size {t.size:g} --period {t.period:g} --roll {t.roll_deg:g})") from None
     sim = SimConfig(physics_hz=cfg.backend.physics_hz, gyro_delay=cfg.backend.gyro_delay_s, realtime=realtime,
                     gui=gui, mocap_rate_hz=m.rate_hz,
                     position_noise=m.position_noise, attitude_noise=np.radians(m.attitude_noise_deg),

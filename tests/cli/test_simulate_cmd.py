@@ -45,6 +45,10 @@ def test_json_metrics_and_plot(cli, tmp_path):
     (["simulate", TOY, "--physics-hz", "1e9"], "--physics-hz: 1e+09 Hz is above 2000 Hz"),
     (["simulate", TOY, "--physics-hz", "30"], "--physics-hz: 4 Hz at attitude_zeta = 0.9"),
     (["simulate", "/dev/zero"], "/dev/zero: not a text file"),
+    # the trajectory the options ask is beyond the assembly: the options named (before: the trajectory alone)
+    (["simulate", TOY, "--duration", "1e-300"], "(--trajectory figure8 --duration 1e-300 --height 1"),
+    (["simulate", TOY, "--period", "0.3"], "asks for 89 deg of tilt, above 0.75 x gains.max_tilt_deg = 22.5 deg "
+                                           "(--trajectory figure8 --duration 16 --height 1 --size 0.6 --period 0.3"),
 ])
 def test_bad_input(cli, args, fragment):
     code, out, err = cli(*args)
