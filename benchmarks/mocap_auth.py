@@ -4,7 +4,8 @@
 
 Times what the ground station does with each pose sample it takes, in this process on one core: decoding it
 without a key (the baseline: protobuf parse, checks), and decoding it with the key (the MAC checked first), and
-the publisher's side (encoding with and without the MAC). Medians over repeats of the per-sample time, and the
+the publisher's side (encoding with and without the MAC), and the challenges (with the key only: the ground station
+signs one every 10 ms, the publisher checks each). Medians over repeats of the per-sample time, and the
 ratio to the baseline run in the same command; at 100-360 Hz mocap the per-period budget is 4 ms (250 Hz loop).
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 from benchmarks._util import median, pin_one_core, print_table
 from groundstation.control.trajectory import euler_zyx
 from groundstation.mocap.auth import MocapKey
-from groundstation.mocap.codec import PoseSample, decode, encode
+from groundstation.mocap.codec import PoseSample, challenge_key, decode, decode_challenge, encode, encode_challenge
 
 KEY_EXPR = "mocap/assembly/pose"
 
@@ -41,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     pin_one_core()
     key = MocapKey(bytes(range(32)))
     rng = np.random.default_rng(0)
-    poses = [PoseSample(k + 1, 1.7e9 + 0.01 * k, rng.normal(0, 1, 3), euler_zyx(*rng.uniform(-1, 1, 3)))
+    poses = [PoseSample(k + 1, 1.7e9 + 0.01 * k, rng.normal(0, 1, 3), euler_zyx(*rng.uniform(-1, 1, 3)),
+                        (rng.bytes(8), rng.bytes(8)))  # two challenges echoed (ignored without the key)
              for k in range(a.samples)]
     plain = [encode(p) for p in poses]
     signed = [encode(p, key, KEY_EXPR) for p in poses]
@@ -49,12 +51,19 @@ def main(argv: list[str] | None = None) -> int:
     decode_signed = _per_sample_us(lambda s: decode(s[0], s[1], key, KEY_EXPR), signed, a.repeats)
     encode_plain = _per_sample_us(encode, poses, a.repeats)
     encode_signed = _per_sample_us(lambda p: encode(p, key, KEY_EXPR), poses, a.repeats)
+    where = challenge_key(KEY_EXPR)
+    nonces = [p.echoes[0] for p in poses]
+    challenges = [encode_challenge(n, key, where) for n in nonces]
+    sign = _per_sample_us(lambda n: encode_challenge(n, key, where), nonces, a.repeats)
+    check = _per_sample_us(lambda c: decode_challenge(c[0], c[1], key, where), challenges, a.repeats)
     print_table(f"mocap samples: {a.samples} per run, median of {a.repeats} runs, one core", [
         "side", "without key (us)", "with key (us)", "ratio", "MAC cost (us)"], [
         ["ground station: decode", decode_plain, decode_signed, decode_signed / decode_plain,
          decode_signed - decode_plain],
         ["publisher: encode", encode_plain, encode_signed, encode_signed / encode_plain,
-         encode_signed - encode_plain]])
+         encode_signed - encode_plain],
+        ["ground station: sign a challenge (100/s)", "-", sign, "-", sign],
+        ["publisher: check a challenge", "-", check, "-", check]])
     return 0
 
 

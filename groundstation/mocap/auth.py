@@ -1,9 +1,12 @@
 """Authenticated mocap: a key shared by the bridge and the ground station, and a MAC on every pose sample.
 
-The tag is HMAC-SHA256 truncated to 128 bits over the Zenoh key expression, the sequence/stamp attachment and the
-payload, so a tag cannot be moved to another body's key or to another pose or stamp. It proves a sample came from
-a holder of the key; a captured sample re-sent later still carries a valid tag, and the subscriber's sequence and
-stamp checks reject it (an old stamp disagrees with its arrival time, an old sequence is not after the newest).
+The tag is HMAC-SHA256 truncated to 128 bits over the Zenoh key expression, the attachment (sequence, stamp, the
+challenges echoed) and the payload, so a tag cannot be moved to another body's key or to another pose, stamp or
+echo. It proves a sample came from a holder of the key, not when: a captured sample re-sent later, or the stream
+held back on the way, still carries valid tags. The echoed challenges say when (a sample was made after the
+ground station sent the challenge it echoes: :mod:`groundstation.mocap.codec`), and the subscriber's sequence and
+stamp checks reject the rest (an old stamp disagrees with its arrival time, an old sequence is not after the
+newest).
 
 The key file holds 32 random bytes as 64 hexadecimal digits on one line, readable by its owner only (like an SSH
 private key): ``groundstation mocap-key PATH`` writes one.

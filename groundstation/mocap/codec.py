@@ -2,11 +2,18 @@
 
 Payload: ``foxglove.PoseInFrame`` (frame ``world``, z up, metres; the same bytes are logged to MCAP unchanged and
 Foxglove draws them). Attachment: 16 bytes little-endian, ``uint64 sequence`` then ``float64 stamp``, so a
-subscriber can detect drops without parsing the payload; with a shared key (:mod:`groundstation.mocap.auth`) a
-16-byte MAC follows them (32 bytes in all). The stamp (in the attachment and the payload's
+subscriber can detect drops without parsing the payload; with a shared key (:mod:`groundstation.mocap.auth`) the
+newest two challenges the publisher heard follow (:data:`ECHOES` nonces of :data:`NONCE_BYTES`, zeros for none)
+and a 16-byte MAC over it all (48 bytes in all). The stamp (in the attachment and the payload's
 timestamp) is the publisher's wall clock (seconds since the epoch) when the pose was measured: the clock flight
 logs use, so a logged pose and the flight's records share one time base (across machines, as far as their clocks
 are synchronized).
+
+Challenges (with a key): the ground station puts a random nonce with its MAC on ``<prefix>/<body>/challenge``
+every few ms; the publisher echoes the newest it heard in each sample. A sample that echoes a nonce was made after
+that nonce was sent, whatever its stamp says: a man in the middle can hold the stream back (the MAC stays valid)
+but not make it echo a challenge sent after it was made, so a delay shows as an old echo
+(:class:`~groundstation.mocap.zenoh_link.PoseSubscriber`), from the stream's first sample on.
 """
 
 from __future__ import annotations
@@ -23,6 +30,11 @@ from groundstation.rotations import matrix_to_quat, quat_to_matrix
 
 _ATTACHMENT = struct.Struct("<Qd")
 WORLD_FRAME = "world"
+NONCE_BYTES = 8
+ECHOES = 2
+"""Challenges echoed per sample: the newest two, so a second ground station on the key (a monitor) does not take
+the echo away from the first."""
+_NO_NONCE = bytes(NONCE_BYTES)
 
 
 class Unauthenticated(ValueError):
@@ -40,6 +52,8 @@ class PoseSample:
     """World frame, m."""
     rotation: np.ndarray
     """Body-to-world rotation."""
+    echoes: tuple[bytes, ...] = ()
+    """The challenge nonces the publisher heard last (with a key; none without)."""
 
 
 def pose_message(position: np.ndarray, rotation: np.ndarray, stamp: float, frame: str = WORLD_FRAME) -> PoseInFrame:
@@ -52,27 +66,51 @@ def pose_message(position: np.ndarray, rotation: np.ndarray, stamp: float, frame
 
 
 def encode(sample: PoseSample, key: MocapKey | None = None, key_expr: str = "") -> tuple[bytes, bytes]:
-    """(payload, attachment) for Zenoh; with ``key``, the attachment ends with the MAC for ``key_expr``."""
+    """(payload, attachment) for Zenoh; with ``key``, the attachment carries the sample's echoes and ends with the
+    MAC for ``key_expr``."""
     payload = pose_message(sample.position, sample.rotation, sample.stamp).SerializeToString()
     attachment = _ATTACHMENT.pack(sample.sequence, sample.stamp)
     if key is not None:
+        echoes = list(sample.echoes[-ECHOES:])
+        attachment += b"".join(echoes + [_NO_NONCE] * (ECHOES - len(echoes)))
         attachment += key.tag(key_expr, attachment, payload)
     return payload, attachment
+
+
+def challenge_key(pose_key: str) -> str:
+    """Where the challenges for the poses on ``pose_key`` (``<prefix>/<body>/pose``) are put."""
+    return pose_key.rpartition("/")[0] + "/challenge"
+
+
+def encode_challenge(nonce: bytes, key: MocapKey, key_expr: str) -> tuple[bytes, bytes]:
+    """(payload, attachment) of a challenge: the nonce, and its MAC (only a key holder may challenge: anyone else's
+    nonces, echoed, would push the ground station's out)."""
+    return nonce, key.tag(key_expr, b"", nonce)
+
+
+def decode_challenge(payload: bytes, attachment: bytes | None, key: MocapKey, key_expr: str) -> bytes | None:
+    """The nonce of a challenge with a valid MAC; None for anything else."""
+    if len(payload) != NONCE_BYTES or payload == _NO_NONCE or attachment is None:
+        return None
+    return payload if key.verify(key_expr, b"", payload, attachment) else None
 
 
 def decode(payload: bytes, attachment: bytes | None, key: MocapKey | None = None, key_expr: str = "") -> PoseSample:
     """Inverse of :func:`encode`; raises ``ValueError`` on malformed input (a stamp that is not a finite,
     non-negative time included) and :class:`Unauthenticated` when ``key`` is given and the MAC is missing or wrong.
     Without a key a MAC is ignored: an unauthenticated subscriber reads an authenticated stream."""
-    if attachment is None or len(attachment) not in (_ATTACHMENT.size, _ATTACHMENT.size + TAG_BYTES):
+    signed = _ATTACHMENT.size + ECHOES * NONCE_BYTES
+    if attachment is None or len(attachment) not in (_ATTACHMENT.size, signed + TAG_BYTES):
         raise ValueError("missing or malformed sequence/stamp attachment")
     head = attachment[:_ATTACHMENT.size]
+    echoes: tuple[bytes, ...] = ()
     if key is not None:
-        tag = attachment[_ATTACHMENT.size:]
-        if not tag:
+        if len(attachment) == _ATTACHMENT.size:
             raise Unauthenticated("no MAC")
-        if not key.verify(key_expr, head, payload, tag):
+        if not key.verify(key_expr, attachment[:signed], payload, attachment[signed:]):
             raise Unauthenticated("wrong MAC")
+        echoes = tuple(e for i in range(_ATTACHMENT.size, signed, NONCE_BYTES)
+                       if (e := attachment[i:i + NONCE_BYTES]) != _NO_NONCE)
     msg = PoseInFrame()
     try:
         msg.ParseFromString(payload)
@@ -86,4 +124,4 @@ def decode(payload: bytes, attachment: bytes | None, key: MocapKey | None = None
     pos = np.array([p.x, p.y, p.z])
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(pos))) or abs(np.linalg.norm(q) - 1.0) > 1e-3:
         raise ValueError("pose is not finite or its orientation is not a unit quaternion")
-    return PoseSample(seq, stamp, pos, quat_to_matrix(q))
+    return PoseSample(seq, stamp, pos, quat_to_matrix(q), echoes)

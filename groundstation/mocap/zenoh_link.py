@@ -9,6 +9,7 @@ closed explicitly (an unclosed session keeps the process alive at exit).
 from __future__ import annotations
 
 import json
+import os
 import socket
 import threading
 import time
@@ -21,7 +22,17 @@ import zenoh
 from groundstation.errors import SessionError
 from groundstation.estimation.measurement import PoseMeasurement
 from groundstation.mocap.auth import MocapKey
-from groundstation.mocap.codec import PoseSample, Unauthenticated, decode, encode
+from groundstation.mocap.codec import (
+    ECHOES,
+    NONCE_BYTES,
+    PoseSample,
+    Unauthenticated,
+    challenge_key,
+    decode,
+    decode_challenge,
+    encode,
+    encode_challenge,
+)
 from groundstation.mocap.stamp_clock import StampClock, StampClockSettings
 
 
@@ -41,6 +52,10 @@ class Security:
     mutual: bool = True
     access_control: str | None = None
 
+
+CHALLENGE_S = 0.01
+"""A keyed subscriber challenges its publisher at most this often (on its polls), s: the echo of a sample is then at
+most this plus the round trip older than the sample."""
 
 RECONNECT = {"period_init_ms": 50, "period_max_ms": 200, "period_increase_factor": 2}
 """Zenoh's retry of a connect endpoint whose link went down (``connect/retry``): first after 50 ms, then at most
@@ -101,22 +116,40 @@ def pose_key(prefix: str, body: str) -> str:
 class PosePublisher:
     """Publishes poses of one rigid body on its key (``<prefix>/<body>/pose``), each with the publisher's Zenoh
     entity id and the sequence number as source info, so a subscriber can tell publishers apart, and with
-    ``mac_key`` a MAC (:mod:`groundstation.mocap.auth`)."""
+    ``mac_key`` a MAC (:mod:`groundstation.mocap.auth`) and the newest challenges heard, echoed
+    (:mod:`groundstation.mocap.codec`)."""
+
+    CHALLENGES = 64
+    """Challenges buffered between two samples (a ground station sends one every ``CHALLENGE_S``)."""
 
     def __init__(self, session: zenoh.Session, key: str, mac_key: MocapKey | None = None) -> None:
         self._pub = session.declare_publisher(key, express=True)
         self._key = key
         self._mac_key = mac_key
         self._seq = 0
+        self._echoes: deque[bytes] = deque(maxlen=ECHOES)
+        # Drained as each sample is made, on the caller's thread (a Python callback on Zenoh's thread deadlocked
+        # against a session's close in a test).
+        self._challenges = (session.declare_subscriber(challenge_key(key), zenoh.handlers.RingChannel(self.CHALLENGES))
+                            if mac_key is not None else None)
 
     def publish(self, position: np.ndarray, rotation: np.ndarray, stamp: float) -> PoseSample:
         self._seq += 1
-        sample = PoseSample(self._seq, stamp, np.asarray(position, float), np.asarray(rotation, float))
+        if self._challenges is not None:
+            while (c := self._challenges.try_recv()) is not None:
+                attachment = c.attachment.to_bytes() if c.attachment is not None else None
+                nonce = decode_challenge(c.payload.to_bytes(), attachment, self._mac_key, str(c.key_expr))
+                if nonce is not None and str(c.key_expr) == challenge_key(self._key):
+                    self._echoes.append(nonce)
+        sample = PoseSample(self._seq, stamp, np.asarray(position, float), np.asarray(rotation, float),
+                            tuple(self._echoes))
         payload, attachment = encode(sample, self._mac_key, self._key)
         self._pub.put(payload, attachment=attachment, source_info=zenoh.SourceInfo(self._pub.id, self._seq))
         return sample
 
     def close(self) -> None:
+        if self._challenges is not None:
+            self._challenges.undeclare()
         self._pub.undeclare()
 
 
@@ -138,6 +171,12 @@ class SubscriberSettings:
     """This many sequence conflicts (two interleaved sequences under one source id) within a second are a fault:
     a single publisher's samples arrive in order on Zenoh's ordered links, so only a second sender that copied the
     source id produces them."""
+    fresh_s: float = 0.025
+    """With a key: a sample must echo a challenge sent at most this long before the poll before the one that found
+    it, s (one challenge interval, ``CHALLENGE_S``, and a round trip on a lab network: 10-12 ms). A sample held back
+    on the way echoes an older one: before, a man in the middle delaying the stream from its first sample on was
+    taken for the network's latency whatever the delay, and a delay grown slowly was followed up to the stamps'
+    ``max_rise_s``."""
     handover_silence_s: float = 0.5
     """With a key: a new authenticated publisher whose stamps are fresh on the old one's clock becomes the source once
     the old one has been silent this long (a bridge restarted: a new entity id, its sequence from 1, after a second
@@ -220,7 +259,8 @@ class PoseSubscriber:
         self.unauthenticated = 0
         """Samples without a valid MAC (with ``mac_key``)."""
         self.bad_stamps = 0
-        """Samples of the source whose stamp disagrees with their arrival time."""
+        """Samples of the source whose stamp disagrees with their arrival time or (with a key) that echo no challenge
+        sent within ``fresh_s`` of it (held back on the way)."""
         self.conflicts = 0
         """Samples taken right after one of another sequence under the same source id was rejected."""
         self.resyncs = 0
@@ -233,6 +273,11 @@ class PoseSubscriber:
         self.last_rejection = ""
         """Why the newest rejected sample was rejected."""
         self._raw: list[tuple[float, bytes, float]] = []
+        self._challenger = (session.declare_publisher(challenge_key(key), express=True)
+                            if mac_key is not None else None)
+        self._challenges: dict[bytes, float] = {}
+        """Nonces sent in the last second, with when (clock time), s, oldest first."""
+        self._challenged = -np.inf
         self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(self.RING))
 
     def poll(self) -> int:
@@ -245,6 +290,8 @@ class PoseSubscriber:
             # timed before its arrival, which would look faster than the fastest path and lower the stream's offset.
             now = self._clock()
             before, self._polled = self._polled, now  # what is found now arrived after ``before``
+            if self._challenger is not None and now - self._challenged >= CHALLENGE_S:
+                self._challenge(now)
             for sample in found:
                 self._accept(sample, now, before)
             n = len(found)
@@ -255,6 +302,23 @@ class PoseSubscriber:
                                       for p in self._taken)
             self._taken.clear()
         return n
+
+    def _challenge(self, now: float) -> None:
+        """Send a new nonce for the publisher to echo, and forget those sent more than a second ago."""
+        nonce = os.urandom(NONCE_BYTES)
+        payload, tag = encode_challenge(nonce, self._mac_key, challenge_key(self.key))
+        self._challenger.put(payload, attachment=tag)
+        self._challenges[nonce] = self._challenged = now
+        while (oldest := next(iter(self._challenges.items())))[1] < now - 1.0:
+            del self._challenges[oldest[0]]
+
+    def _unfresh(self, pose: PoseSample, before: float) -> str:
+        """Why ``pose`` (keyed; it arrived after ``before``) is not shown fresh ("" if it is): it must echo a
+        challenge sent at most ``fresh_s`` before ``before``."""
+        sent = max((self._challenges[e] for e in pose.echoes if e in self._challenges), default=None)
+        if sent is None:
+            return "echoes no recent challenge of this ground station"
+        return f"echoes a challenge {(before - sent) * 1e3:.0f} ms old" if before - sent > self.settings.fresh_s else ""
 
     def _why_not(self, pose: PoseSample, last: PoseSample, now: float) -> str:
         """Why ``pose``, arriving at ``now``, cannot follow ``last``; "" if it can."""
@@ -358,12 +422,14 @@ class PoseSubscriber:
 
     def _bad_stamp(self, pose: PoseSample, before: float, now: float, why: str) -> bool:
         """Whether ``pose``'s stamp disagrees with its arrival (after ``before``, by ``now``); if so it is counted,
-        and ``why`` (its ``{}`` the disagreement, ms) is the last rejection."""
-        if self._stamps.believable(pose.stamp, before, now):
+        and ``why`` (its ``{}`` the disagreement, ms) is the last rejection. With a key the sample's echo comes
+        first: held back on the way, it is late whatever its stamp says."""
+        stale = self._unfresh(pose, before) if self._mac_key is not None else ""
+        if not stale and self._stamps.believable(pose.stamp, before, now):
             return False
         self.rejected += 1
         self.bad_stamps += 1
-        self.last_rejection = why.format(f"{self._stamps.disagreement(pose.stamp, before, now) * 1e3:+.0f}")
+        self.last_rejection = stale or why.format(f"{self._stamps.disagreement(pose.stamp, before, now) * 1e3:+.0f}")
         return True
 
     def _may_hand_over(self, now: float) -> bool:
@@ -468,3 +534,6 @@ class PoseSubscriber:
             if self._sub is not None:
                 self._sub.undeclare()
                 self._sub = None
+            if self._challenger is not None:
+                self._challenger.undeclare()
+                self._challenger = None

@@ -559,6 +559,9 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
         if sub.unauthenticated:  # a bridge with another key (or none): its samples arrive, and are never used
             unseen += (f": {sub.unauthenticated} samples arrived but failed authentication against mocap.key_file "
                        f"({m.key_file}): their publisher has another key, or none")
+        elif sub.bad_stamps:  # they arrive, from the key's holder, and none was on time
+            unseen += (f": {sub.bad_stamps} samples arrived and were refused as late (last: {sub.last_rejection}): "
+                       f"held back on the way, or the bridge's clock is not this host's")
         issues.append(unseen)
     else:
         if s.rotation[2, 2] < np.cos(np.radians(10)):

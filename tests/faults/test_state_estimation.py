@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
+from groundstation.errors import PreflightError
 from groundstation.mocap.auth import write_key_file
 from groundstation.runtime.fly import Faults, fly
 from tests.faults.table import Fault, estimate_fault, rows
@@ -77,18 +79,23 @@ def _injected(faults: Faults, name: str, value, at: float = TRACK_START_S + 2.5)
 
 
 @contextlib.contextmanager
-def _cuttable(tmp_path, *relay_args: str):
+def _cuttable(tmp_path, *relay_args: str, keyed: bool = False):
     """Simulated Crazyflie modules whose mocap reaches the ground station through a TCP relay (``sim.tcp_relay``:
-    SIGUSR1 cuts it for 300 ms, SIGUSR2 starts the delay ``relay_args`` give); yields the flight config and the
-    relay process."""
+    SIGUSR1 cuts it for 300 ms, SIGUSR2 starts the delay ``relay_args`` give), ``keyed``: the mocap authenticated;
+    yields the flight config and the relay process."""
+    key = write_key_file(tmp_path / "mocap.key") if keyed else None
     relay = subprocess.Popen([sys.executable, "-m", "sim.tcp_relay", "--listen", str(RELAY_PORT), "--target",
                               str(MOCAP_PORT), "--cut-for", "0.3", *relay_args], stdout=subprocess.PIPE, text=True)
     peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
                         "--mocap", f"tcp/127.0.0.1:{MOCAP_PORT}", "--params",
-                        str(ROOT / "firmware_params/crazyflie.toml"))
+                        str(ROOT / "firmware_params/crazyflie.toml"),
+                        *(("--mocap-key-file", str(key)) if keyed else ()))
     try:
         assert relay.stdout.readline().strip() == "ready"
-        yield sitl_config(tmp_path, "crazyflie", PEER_PORT, f"tcp/127.0.0.1:{RELAY_PORT}"), relay
+        cfg = sitl_config(tmp_path, "crazyflie", PEER_PORT, f"tcp/127.0.0.1:{RELAY_PORT}")
+        if keyed:
+            cfg.write_text(cfg.read_text().replace("[mocap]\n", f'[mocap]\nkey_file = "{key}"\n'))
+        yield cfg, relay
     finally:
         for p in (peer, relay):
             p.terminate()
@@ -145,6 +152,26 @@ def f_mocap_delay_growing(cli, tmp_path):
     assert abs(poses[-1].pose.position.z - poses[0].pose.position.z) < 0.03  # on the ground it took off from
     # not flown away: within 0.4 m of the figure-8's reach (0.6 m; 3-14 m away before)
     assert np.hypot(poses[-1].pose.position.x, poses[-1].pose.position.y) < 1.0
+
+
+@estimate_fault("authenticated mocap: a man in the middle holding back the stream to simulated Crazyflie modules by "
+                "60 ms from before its first sample (a TCP relay, in order, every MAC valid)",
+                "refused before arming: each sample echoes a challenge of the ground station's 60-70 ms old, "
+                "preflight says how many arrived and were refused as late, nothing armed, exit 1 (before: the delay "
+                "was the network's latency as far as the stamps could tell, and the V armed on poses 60 ms old taken "
+                "for fresh)")
+def f_mocap_held_back_from_the_start(cli, tmp_path):
+    log = tmp_path / "held.mcap"
+    with _cuttable(tmp_path, "--delay-growth", "1e9", "--delay-max", "60", keyed=True) as (cfg, relay):
+        relay.send_signal(signal.SIGUSR2)  # the delay from before the first sample
+        with pytest.raises(PreflightError, match=r"mocap does not see 'assembly' on mocap/assembly/pose via "
+                                                 r"tcp/127.0.0.1:7534: \d+ samples arrived and were refused as late "
+                                                 r"\(last: echoes a challenge (\d+) ms old\)") as refused:
+            fly(cfg, duration=4.0, log_path=log)
+    age = int(re.search(r"echoes a challenge (\d+) ms old", str(refused.value)).group(1))
+    assert 55 <= age <= 110, age  # the delay, and at most a challenge interval and a few polls more
+    _, _, _, motors = read_log(log)
+    assert not motors  # not one period flown: nothing armed
 
 
 @estimate_fault("mocap: no pose for 1 s in tracking (dry run)",
