@@ -261,6 +261,9 @@ class PoseSubscriber:
         self.bad_stamps = 0
         """Samples of the source whose stamp disagrees with their arrival time or (with a key) that echo no challenge
         sent within ``fresh_s`` of it (held back on the way)."""
+        self.unechoed = 0
+        """Of :attr:`bad_stamps`, samples that echo no challenge this subscriber sent in the last second (a bridge
+        that hears none: access control, an older bridge; or samples re-sent long after)."""
         self.conflicts = 0
         """Samples taken right after one of another sequence under the same source id was rejected."""
         self.resyncs = 0
@@ -317,6 +320,7 @@ class PoseSubscriber:
         challenge sent at most ``fresh_s`` before ``before``."""
         sent = max((self._challenges[e] for e in pose.echoes if e in self._challenges), default=None)
         if sent is None:
+            self.unechoed += 1
             return "echoes no recent challenge of this ground station"
         return f"echoes a challenge {(before - sent) * 1e3:.0f} ms old" if before - sent > self.settings.fresh_s else ""
 

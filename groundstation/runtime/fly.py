@@ -50,6 +50,7 @@ from groundstation.firmware.params import issues as param_issues
 from groundstation.flightlog.mcap_log import WRITER_START_S, FlightLog, claim
 from groundstation.loop_activity import LoopActivity
 from groundstation.mocap.auth import MocapKey
+from groundstation.mocap.codec import challenge_key
 from groundstation.mocap.stamp_clock import StampClockSettings
 from groundstation.mocap.zenoh_link import (
     PoseSubscriber,
@@ -560,8 +561,12 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
             unseen += (f": {sub.unauthenticated} samples arrived but failed authentication against mocap.key_file "
                        f"({m.key_file}): their publisher has another key, or none")
         elif sub.bad_stamps:  # they arrive, from the key's holder, and none was on time
+            why = (f"the bridge hears no challenge of this ground station (access control must let it put on "
+                   f"{challenge_key(p.key)}; a bridge older than the challenges echoes none)"
+                   if sub.unechoed == sub.bad_stamps
+                   else "held back on the way, or the bridge's clock is not this host's")
             unseen += (f": {sub.bad_stamps} samples arrived and were refused as late (last: {sub.last_rejection}): "
-                       f"held back on the way, or the bridge's clock is not this host's")
+                       f"{why}")
         issues.append(unseen)
     else:
         if s.rotation[2, 2] < np.cos(np.radians(10)):
