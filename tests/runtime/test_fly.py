@@ -261,64 +261,50 @@ def test_shipped_flight_configs_load(path):
         assert (base / cfg.backend.firmware_params).is_file()
 
 
-def test_mocap_with_another_key_is_named_in_preflight(tmp_path):
-    """A bridge publishing with another key than mocap.key_file: its samples arrive and fail authentication. Before,
-    preflight said only that mocap "does not see" the body (while the subscriber counted 222 such samples)."""
+def _refused_beside_a_bridge(tmp_path, port: int, bridge_key: Path, flight_key: Path) -> str:
+    """Why preflight refused a flight keyed with ``flight_key`` beside a mock bridge (``mocap-bridge``'s code, in a
+    thread) publishing with ``bridge_key`` on ``port``; the modules' links lead nowhere."""
     import threading
 
     from groundstation.errors import PreflightError
     from groundstation.mocap.auth import load_key_file
     from groundstation.mocap.bridge import run_bridge
 
-    ours, theirs = write_key_file(tmp_path / "ours.key"), write_key_file(tmp_path / "theirs.key")
-    endpoint = "tcp/127.0.0.1:7795"
+    endpoint = f"tcp/127.0.0.1:{port}"
     stop = threading.Event()
     bridge = threading.Thread(target=run_bridge, args=("mock", "", ["assembly"], endpoint),
                               kwargs={"mock_bodies": "assembly(0,0,0.03,1,0,0,0)", "stop": stop,
-                                      "mac_key": load_key_file(theirs)})
+                                      "mac_key": load_key_file(bridge_key)})
     bridge.start()
     hardware = 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:19896", "udp://127.0.0.1:19897"]'  # nobody there
-    cfg = config_with(tmp_path, endpoint=endpoint, **{'kind = "sim"': hardware,
-                                                      "latency_s = 0.005": f'latency_s = 0.005\nkey_file = "{ours}"'})
+    keyed = f'latency_s = 0.005\nkey_file = "{flight_key}"'
+    cfg = config_with(tmp_path, endpoint=endpoint, **{'kind = "sim"': hardware, "latency_s = 0.005": keyed})
     try:
         with pytest.raises(PreflightError) as exc:
             fly(cfg, log_path=tmp_path / "x.mcap")
     finally:
         stop.set()
         bridge.join(timeout=10)
-    text = str(exc.value)
-    assert f"mocap does not see 'assembly' on mocap/assembly/pose via {endpoint}: " in text, text
+    return str(exc.value)
+
+
+def test_mocap_with_another_key_is_named_in_preflight(tmp_path):
+    """A bridge publishing with another key than mocap.key_file: its samples arrive and fail authentication. Before,
+    preflight said only that mocap "does not see" the body (while the subscriber counted 222 such samples)."""
+    ours, theirs = write_key_file(tmp_path / "ours.key"), write_key_file(tmp_path / "theirs.key")
+    text = _refused_beside_a_bridge(tmp_path, 7795, theirs, ours)
+    assert "mocap does not see 'assembly' on mocap/assembly/pose via tcp/127.0.0.1:7795: " in text, text
     assert f"samples arrived but failed authentication against mocap.key_file ({ours})" in text, text
 
 
 def test_a_bridge_that_hears_no_challenge_is_named_in_preflight(tmp_path, monkeypatch):
     """A keyed bridge that never hears the ground station's challenges (access control forbids the put, or the
     bridge predates them): every sample is refused as late, and preflight says why, naming the challenge key."""
-    import threading
-
-    from groundstation.errors import PreflightError
     from groundstation.mocap import zenoh_link
-    from groundstation.mocap.auth import load_key_file
-    from groundstation.mocap.bridge import run_bridge
 
     monkeypatch.setattr(zenoh_link, "decode_challenge", lambda *args: None)  # the bridge's side only: it hears none
     key = write_key_file(tmp_path / "mocap.key")
-    endpoint = "tcp/127.0.0.1:7797"
-    stop = threading.Event()
-    bridge = threading.Thread(target=run_bridge, args=("mock", "", ["assembly"], endpoint),
-                              kwargs={"mock_bodies": "assembly(0,0,0.03,1,0,0,0)", "stop": stop,
-                                      "mac_key": load_key_file(key)})
-    bridge.start()
-    hardware = 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:19896", "udp://127.0.0.1:19897"]'  # nobody there
-    cfg = config_with(tmp_path, endpoint=endpoint, **{'kind = "sim"': hardware,
-                                                      "latency_s = 0.005": f'latency_s = 0.005\nkey_file = "{key}"'})
-    try:
-        with pytest.raises(PreflightError) as exc:
-            fly(cfg, log_path=tmp_path / "x.mcap")
-    finally:
-        stop.set()
-        bridge.join(timeout=10)
-    text = str(exc.value)
+    text = _refused_beside_a_bridge(tmp_path, 7797, key, key)
     assert re.search(r"mocap does not see 'assembly' on mocap/assembly/pose via tcp/127.0.0.1:7797: \d+ samples "
                      r"arrived and were refused as late \(last: echoes no recent challenge of this ground station\): "
                      r"the bridge hears no challenge of this ground station \(access control must let it put on "
