@@ -4,6 +4,8 @@ file and the key path."""
 from __future__ import annotations
 
 import json
+import os
+import stat
 import tomllib
 from pathlib import Path
 from typing import TypeVar
@@ -27,7 +29,15 @@ def read_text(path: str | Path) -> str:
     the file, and never read whole."""
     p = Path(path)
     try:
-        with p.open("rb") as fh:
+        # Opened without blocking, to see what it is first: a FIFO without a writer blocked the open for good (a
+        # hung `fly`, its first Ctrl-C swallowed; hostile campaign 28).
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK)
+        kind = os.fstat(fd).st_mode
+        if stat.S_ISFIFO(kind) or stat.S_ISSOCK(kind):
+            os.close(fd)
+            raise ConfigError("not a regular file (a pipe or socket), expected a text file", path=str(p))
+        os.set_blocking(fd, True)
+        with os.fdopen(fd, "rb") as fh:
             data = fh.read(MAX_TEXT_BYTES + 1)
     except FileNotFoundError:
         raise ConfigError("file not found", path=str(p)) from None

@@ -44,7 +44,7 @@ from groundstation.design.certificates import force_span_certificate, infeasibil
 from groundstation.design.enumeration import SamplingPolicy, enumerate_levels
 from groundstation.design.optimize import SolverOptions, least_bound, optimize, with_input_bound
 from groundstation.design.task import Task
-from groundstation.errors import ConfigError, TopologyError
+from groundstation.errors import ConfigError, GroundstationError, TopologyError
 from groundstation.output import writing
 
 
@@ -325,7 +325,10 @@ class _Runner:
         if self.scheduler:
             from distributed import Client
 
-            self._client = Client(self.scheduler, timeout="20s")
+            try:
+                self._client = Client(self.scheduler, timeout="20s")
+            except (OSError, ValueError) as exc:  # refused, timed out, not an address: one line, not a traceback
+                raise GroundstationError(f"cannot reach the Dask scheduler {self.scheduler}: {exc}") from None
         elif self.workers > 1:
             # spawn, not fork: CasADi and the numba runtime hold threads and state a fork would copy half-done.
             self._pool = get_context("spawn").Pool(self.workers, initializer=_ignore_sigint)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import socket
 import threading
 import time
@@ -63,14 +64,39 @@ every 200 ms. Zenoh's default (1 s, up to 4 s) left a flight 1-4 s without poses
 poses are back within ~0.2 s of the link (measured: the fault table's 300 ms cut)."""
 
 
+SESSION_FDS = 48
+"""File descriptors a process with a Zenoh session needs at least (its runtime's threads, sockets and pipes; a
+flight's log and links besides): with 24 (``ulimit -n 24``) Zenoh's runtime panicked in a thread of its own and
+the flight ended in a traceback (hostile campaign 28); 48 flew."""
+
+
+def _enough_descriptors() -> None:
+    """Raise the soft limit on open files to at least 256 where the hard limit allows; a SessionError if the hard
+    limit is below :data:`SESSION_FDS`."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    unlimited = hard == resource.RLIM_INFINITY
+    want = 256 if unlimited else min(256, hard)
+    if soft != resource.RLIM_INFINITY and soft < want:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+        soft = want
+    if soft != resource.RLIM_INFINITY and soft < SESSION_FDS:
+        raise SessionError(f"this process may open only {soft} files (ulimit -n {soft}): a Zenoh session needs "
+                           f"at least {SESSION_FDS}")
+
+
 def open_session(listen: list[str] | None = None, connect: list[str] | None = None,
                  security: Security | None = None) -> zenoh.Session:
     """A peer-mode session listening on and/or connecting to explicit endpoints, multicast scouting off."""
+    _enough_descriptors()
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("listen/endpoints", json.dumps(list(listen or [])))
-    cfg.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
+    try:
+        cfg.insert_json5("listen/endpoints", json.dumps(list(listen or [])))
+        cfg.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
+    except zenoh.ZError as exc:  # a malformed endpoint: Zenoh's reason, first line
+        raise SessionError(f"bad Zenoh endpoint (listen {listen}, connect {connect}): "
+                           f"{str(exc).splitlines()[0][:200]}") from None
     cfg.insert_json5("connect/retry", json.dumps(RECONNECT))
     if security is not None:
         tls = "transport/link/tls/"

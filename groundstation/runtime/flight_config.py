@@ -86,9 +86,12 @@ IP_PROTOCOLS = ("tcp", "tls", "udp", "quic")
 
 
 def endpoint_port_problem(endpoint: str) -> str:
-    """Why an IP Zenoh endpoint's port (``tcp/HOST:PORT``, ``tls``, ``udp``, ``quic``) is no port to use ("" if it
-    is): 1-65535 (0 listens on a port no one is told of; beyond 65535 Zenoh's own error names no option or key)."""
+    """Why ``endpoint`` is no Zenoh endpoint to use ("" if it is): ``<protocol>/<address>`` (else Zenoh's own
+    error, a traceback, named no option or key), and an IP one's port (``tcp/HOST:PORT``, ``tls``, ``udp``,
+    ``quic``) 1-65535 (0 listens on a port no one is told of)."""
     proto, _, address = endpoint.partition("/")
+    if not proto or not address.split("?")[0].split("#")[0]:
+        return f"{endpoint!r} is not a Zenoh endpoint: <protocol>/<address>, e.g. tcp/127.0.0.1:7448"
     if proto in IP_PROTOCOLS:
         port = address.split("?")[0].split("#")[0].rpartition(":")[2]
         if not port.isdigit() or not 1 <= int(port) <= 65535:

@@ -118,6 +118,13 @@ def test_bad_input(cli, args, fragment):
     assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1, err
 
 
+def test_a_scheduler_that_is_not_there_is_one_line(cli, tmp_path):
+    """Not an address, or nobody listening (a 20 s wait): before, distributed's traceback."""
+    code, _, err = cli("design", TOY, "--scheduler", "junk", "--results", str(tmp_path / "r.jsonl"))
+    assert code == 2 and err == ("groundstation: error: cannot reach the Dask scheduler junk: missing port number in "
+                                 "address 'junk'\n"), err
+
+
 def test_an_edited_results_file_is_refused(cli, tmp_path):
     results = tmp_path / "r.jsonl"
     code, _, _ = cli("design", TOY, "--max-modules", "2", "--results", str(results))

@@ -7,6 +7,8 @@ is opened: no log file is made, nothing armed.
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -260,6 +262,54 @@ def f_absurd_task_is_a_binary(cli, tmp_path):
            "exit 2 naming /dev/zero at once")
 def f_absurd_task_is_dev_zero(cli, tmp_path):
     _refused(cli, ("design", "/dev/zero"), "/dev/zero: not a text file")
+
+
+def _fifo(tmp_path) -> Path:
+    """A named pipe nobody writes to: opening it to read blocks until a writer comes."""
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    return fifo
+
+
+def _refused_at_once(args: list[str], fragment: str) -> None:
+    """``groundstation ARGS`` as an operator runs it, given 60 s: refused, exit 2, one line (a hang fails here)."""
+    proc = subprocess.run([sys.executable, "-m", "groundstation", *args], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and fragment in proc.stderr, proc.stderr
+
+
+@bad_input("fly with a named pipe (FIFO) nobody writes to as the flight config",
+           "exit 2 naming the file: not a regular file (before: the open blocked for good, the first Ctrl-C "
+           "swallowed)")
+def f_absurd_flight_config_is_a_fifo(cli, tmp_path):
+    fifo = _fifo(tmp_path)
+    _refused_at_once(["fly", str(fifo), "--log", str(tmp_path / "x.mcap")],
+                     f"{fifo}: not a regular file (a pipe or socket), expected a text file")
+    assert not (tmp_path / "x.mcap").exists()
+
+
+@bad_input("a FIFO as simulate's and sim-peer's assembly, optimize's task and replay's --rerun-with config",
+           "exit 2 naming the file, each (before: each hung)")
+def f_absurd_inputs_are_fifos(cli, tmp_path):
+    fifo = _fifo(tmp_path)
+    what = f"{fifo}: not a regular file (a pipe or socket), expected a text file"
+    for args in (["simulate", str(fifo), "--duration", "1"], ["sim-peer", str(fifo), "--duration", "1"],
+                 ["optimize", str(fifo), "--topology", "oE"]):
+        _refused_at_once(args, what)
+    log = _mcap(tmp_path)  # a log to replay (its flight is not rerun: the config is refused first)
+    _refused_at_once(["replay", str(log), "--rerun-with", str(fifo)], what)
+
+
+@bad_input("a Zenoh endpoint that is not one ('junk', 'tcp/'): mocap-bridge --endpoint, sim-peer --mocap, "
+           "mocap.endpoint",
+           "exit 2 naming the option or the file and key: <protocol>/<address> (before: a zenoh.ZError traceback)")
+def f_absurd_zenoh_endpoint(cli, tmp_path):
+    what = "is not a Zenoh endpoint: <protocol>/<address>, e.g. tcp/127.0.0.1:7448"
+    _refused_at_once(["mocap-bridge", "--system", "mock", "--bodies", "a", "--endpoint", "junk", "--duration", "1"],
+                     f"Invalid value for '--endpoint': 'junk' {what}")
+    _refused_at_once(["sim-peer", TOY_ASSEMBLY, "--mocap", "tcp/", "--duration", "1"],
+                     f"Invalid value for '--mocap': 'tcp/' {what}")
+    cfg = config_with(tmp_path, endpoint="junk")
+    _fly_refused(cli, tmp_path, cfg, f"mocap.endpoint: 'junk' {what}")
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

@@ -132,6 +132,29 @@ def f_log_path_of_a_running_flight(cli, tmp_path):
     assert r["complete"] and r["phase"] == "done" and r["reason"] == "" and r["periods"] > 250
 
 
+@process_fault("fly started with 24 open files allowed (ulimit -n 24: soft and hard), and with the soft limit alone "
+               "at 24",
+               "hard: one line naming the limit and what a session needs, exit 2, no log (before: a panic in Zenoh's "
+               "runtime and a traceback); soft only: raised, the flight flies, exit 0")
+def f_too_few_file_descriptors(cli, tmp_path):
+    import resource
+
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7659")
+    hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
+    for limits, name in (((24, 24), "hard"), ((24, hard), "soft")):
+        log = tmp_path / f"{name}.mcap"
+        proc = subprocess.run([sys.executable, "-m", "groundstation", "fly", str(cfg), "--log", str(log), "--json",
+                               "--duration", "1"], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                              preexec_fn=lambda limits=limits: resource.setrlimit(resource.RLIMIT_NOFILE, limits))
+        if name == "hard":
+            assert proc.returncode == 2 and proc.stderr == (
+                "groundstation: error: this process may open only 24 files (ulimit -n 24): a Zenoh session needs at "
+                "least 48\n"), proc.stderr
+            assert not log.exists()
+        else:
+            assert proc.returncode == 0 and json.loads(proc.stdout)["phase"] == "done", proc.stderr
+
+
 # -- signals -----------------------------------------------------------------------------------------------------------
 @process_fault("SIGTERM to fly before it arms (during its preflight)",
                "never armed; the log finalized, its end aborted with the reason naming SIGTERM, replayable; exit 1")
@@ -229,19 +252,24 @@ def f_sighup_twice_in_flight(cli, tmp_path):
     _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 7668, signal.SIGHUP), signal.SIGHUP)
 
 
+def _lands_on_the_first(cli, tmp_path, signals: list, port: int) -> None:
+    """``signals`` 0.3 s apart in flight: the flight lands on the first, never stops at the others, and its log
+    says so."""
+    _landed(*_signalled_in_flight(cli, tmp_path, signals, port, signals[0]), signals[0])
+
+
 @process_fault("Ctrl-C in flight, then SIGHUP and SIGTERM (the operator lands it, then their SSH session drops and "
                "the session's end follows)",
                "the landing goes on, never a stop: the SIGTERM after a hang-up is the session's, whatever began the "
                "landing; the log finalized with operator land (SIGINT); exit 0")
 def f_ctrl_c_then_hangup_then_sigterm(cli, tmp_path):
-    signals = [signal.SIGINT, signal.SIGHUP, signal.SIGTERM]
-    _landed(*_signalled_in_flight(cli, tmp_path, signals, 7676, signal.SIGINT), signal.SIGINT)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGINT, signal.SIGHUP, signal.SIGTERM], 7676)
 
 
 @process_fault("Ctrl-\\ (SIGQUIT) in flight",
                "a landing like Ctrl-C (by default it ends the process and the assembly falls); exit 0")
 def f_sigquit_in_flight(cli, tmp_path):
-    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGQUIT], 7673, signal.SIGQUIT), signal.SIGQUIT)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGQUIT], 7673)
 
 
 @process_fault("SIGUSR1 twice in flight, then one Ctrl-C, 0.3 s apart (a tool's kill -USR1, a log rotation; SIGUSR2 "
@@ -249,8 +277,7 @@ def f_sigquit_in_flight(cli, tmp_path):
                "a landing (by default it ends the process and the assembly falls), never a stop: tools repeat it, "
                "and the operator's first Ctrl-C after it is their first request; exit 0")
 def f_sigusr1_twice_then_ctrl_c_in_flight(cli, tmp_path):
-    signals = [signal.SIGUSR1, signal.SIGUSR1, signal.SIGINT]
-    _landed(*_signalled_in_flight(cli, tmp_path, signals, 7674, signal.SIGUSR1), signal.SIGUSR1)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGUSR1, signal.SIGUSR1, signal.SIGINT], 7674)
 
 
 @process_fault("SIGXCPU in flight (the CPU-time limit: ulimit -t, systemd's LimitCPU=), then SIGPWR (a UPS's power "
@@ -258,8 +285,15 @@ def f_sigusr1_twice_then_ctrl_c_in_flight(cli, tmp_path):
                "a landing (by default each ends the process and the assembly falls: 0.94 m up, no summary, in a "
                "hostile check), never a stop; the log finalized with operator land (SIGXCPU); exit 0")
 def f_sigxcpu_sigpwr_and_a_realtime_signal_in_flight(cli, tmp_path):
-    signals = [signal.SIGXCPU, signal.SIGPWR, signal.SIGRTMIN + 3]
-    _landed(*_signalled_in_flight(cli, tmp_path, signals, 7677, signal.SIGXCPU), signal.SIGXCPU)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGXCPU, signal.SIGPWR, signal.SIGRTMIN + 3], 7677)
+
+
+@process_fault("SIGABRT in flight (systemd's WatchdogSec=, kill -ABRT), then SIGTRAP and SIGSYS, 0.3 s apart (sent "
+               "with kill)",
+               "a landing, never a stop (by default each ended the process 0.8-0.94 m up, the log 'no end of flight': "
+               "hostile campaign 28); the log finalized with operator land (SIGABRT); exit 0")
+def f_sigabrt_sigtrap_sigsys_in_flight(cli, tmp_path):
+    _lands_on_the_first(cli, tmp_path, [signal.SIGABRT, signal.SIGTRAP, signal.SIGSYS], 7679)
 
 
 @process_fault("fly --json with its stdout on a full device (/dev/full)",

@@ -42,3 +42,9 @@ def test_measurements_on_the_local_clock_and_jump_rejection(sessions):
 def test_unopenable_endpoint():
     with pytest.raises(SessionError):
         open_session(listen=["tcp/256.1.1.1:1"])
+
+
+def test_an_endpoint_zenoh_cannot_parse_is_a_session_error():
+    """Zenoh's own parse error (a ZError from the config, a traceback at the command line) as one line."""
+    with pytest.raises(SessionError, match=r"bad Zenoh endpoint \(listen None, connect \['tcp/127.0.0.1:1\?'\]\): "):
+        open_session(connect=["tcp/127.0.0.1:1?"])
