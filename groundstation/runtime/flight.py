@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Literal, Protocol
@@ -374,6 +375,12 @@ PRESS_STALE_S = 0.05
 """...s: five samples at 100 Hz; the touchdown may have come unseen."""
 MODEL_DISTURBANCE_NOTED = 0.1
 """Going blind in the take-off, the disturbance set aside is named when it exceeds this on an axis, m/s^2."""
+UNSTEADY_DISTURBANCE = 0.5
+"""A disturbance that spanned more than this on an axis over the last :data:`STEADY_WINDOW_S` is no steady force
+(a push, a wind, a payload) but the estimator absorbing poses it could not follow, m/s^2: a blind landing begun on
+poses the estimator disowned flies on the model instead (:meth:`Flight._begin_landing`)."""
+STEADY_WINDOW_S = 1.0
+"""...s."""
 HOLD_MARGIN = 1.2
 """Modules left after a module fault land the assembly only if they can hold this many times its weight."""
 
@@ -443,6 +450,8 @@ class Flight:
         self._failed_modules: set[int] = set()
         """Modules whose firmware stopped flying them (their rotors are out of the allocation)."""
         self._disturbed_since: float | None = None
+        self._disturbances: deque[tuple[float, tuple[float, float, float]]] = deque()
+        """(estimate time s, disturbance m/s^2) of the periods of the last :data:`STEADY_WINDOW_S`."""
         """Flight time since which the disturbance has been beyond ``max_disturbance_mps2``, s."""
         self._reference_attitude: tuple[float, object, np.ndarray] | None = None
         """(flight time s, its reference, the attitude target of the reference alone) of the previous period."""
@@ -516,6 +525,9 @@ class Flight:
         state = est.state()
         if state is not None:
             self._height = float(state.position[2]) - float(self.plan.ground[2])
+        self._disturbances.append((now, est.disturbance_vector))
+        while self._disturbances[0][0] < now - STEADY_WINDOW_S:
+            self._disturbances.popleft()
         return state, est.age(now)
 
     def _referee_gyros(self, now: float) -> None:
@@ -565,8 +577,10 @@ class Flight:
         self._set_phase(t, Phase.EMERGENCY, why)
         self._log_motors_off(t)  # in the final phase: a log that ends here ends in it
 
-    def _begin_landing(self, t: float, state: RigidState, why: str, blind: bool = False) -> None:
-        """Land in the plan's landing time, or, ``blind`` (on the estimate alone), as :class:`Descent` has it; the
+    def _begin_landing(self, t: float, state: RigidState, why: str, blind: bool = False,
+                       disowned: bool = False) -> None:
+        """Land in the plan's landing time, or, ``blind`` (on the estimate alone; ``disowned``: because the
+        estimator rejected every pose), as :class:`Descent` has it; the
         landing reference goes on from the current one (position, velocity, acceleration: the controller's output
         does not jump; a blind landing's vertical acceleration steps, which changes the collective thrust alone)
         unless the assembly is farther from it than ``max_tracking_error_m``, then from the ``state`` (where and
@@ -583,9 +597,17 @@ class Flight:
             ref = Setpoint(state.position, state.velocity, np.zeros(3), ref.rotation)
         start = tuple(tuple(map(float, x)) for x in (ref.position, ref.velocity, ref.acceleration))
         ground = float(self.plan.ground[2])
+        if blind and not was_blind:
+            span = np.ptp([d for _, d in self._disturbances], axis=0) if self._disturbances else np.zeros(3)
+            if self.phase == Phase.TAKEOFF:
+                self._fly_on_the_model(t, "in the take-off")
+            elif disowned and span.max() > UNSTEADY_DISTURBANCE:
+                # Learnt from poses the estimator could not follow (mocap 60 ms late from its first sample, no key):
+                # flown on, -0.61 m/s^2 had the estimate descend while the body climbed from 1.1 to 2 m, and the
+                # motors stopped there, "landed blind" (hostile campaign 28).
+                self._fly_on_the_model(t, f"the poses disowned, the disturbance unsteady (it spanned "
+                                          f"{span.max():.1f} m/s^2 in the last {STEADY_WINDOW_S:g} s)")
         if blind:
-            if not was_blind and self.phase == Phase.TAKEOFF:
-                self._fly_on_the_model(t)
             landing = Landing.blind(*start, Descent(start[0][2], start[1][2], ground, BLIND_CRUISE_MPS,
                                                     self.policy.blind_descent_mps, BLIND_SLOW_M,
                                                     BLIND_LANDING_DEPTH, BLIND_ACCEL_MPS2, BLIND_PRESS_MPS2,
@@ -612,8 +634,9 @@ class Flight:
         end = float(self.plan.ground[2]) - BLIND_LANDING_DEPTH - 2.0 * sigma
         return float(self._landing_reference(t).position[2]) <= end
 
-    def _fly_on_the_model(self, t: float) -> None:
-        """Going blind in the take-off: the estimator flies on from now on the model's own acceleration (no
+    def _fly_on_the_model(self, t: float, when: str) -> None:
+        """Going blind in the take-off (or on disowned poses, the disturbance unsteady: :data:`UNSTEADY_DISTURBANCE`;
+        ``when`` says which): the estimator flies on from now on the model's own acceleration (no
         disturbance, :meth:`RigidBodyFilter.set_disturbance`): a take-off's disturbance is mostly the rotors' lag
         behind the command (-0.5..+0.3 m/s^2 in a 1 s take-off before the lag was modelled; -0.19 since), and
         flown on blind from 0.3 s into one, -0.48 m/s^2 had the estimate descend at 0.5 m/s while the body climbed
@@ -621,8 +644,8 @@ class Flight:
         the last pose fused, a push's disturbance made the estimate jump 26 cm, and the V climbed to 8 m)."""
         d = self.estimator.disturbance_vector
         if max(abs(x) for x in d) > MODEL_DISTURBANCE_NOTED:
-            self._event(t, "info", f"flying blind in the take-off on the model, not on the disturbance learnt, "
-                                   f"{np.round(d, 2).tolist()} m/s^2")
+            self._event(t, "info", f"flying blind on the model, not on the disturbance learnt "
+                                   f"({np.round(d, 2).tolist()} m/s^2): {when}")
         self.estimator.set_disturbance((0.0, 0.0, 0.0))
 
     # -- one period -----------------------------------------------------------------------------------------------
@@ -686,7 +709,8 @@ class Flight:
             if self.phase.airborne or (self.phase == Phase.LANDING and kind != self._mocap_fault_named):
                 # The estimator's fault: every pose rejected, so landing on the estimate. A landing under way (the
                 # plan's, or on stale poses) goes on, blind if need be, named once per kind of fault.
-                self._begin_landing(t, state, why, blind=bool(est.fault()) or self._poses_untrusted)
+                self._begin_landing(t, state, why, blind=bool(est.fault()) or self._poses_untrusted,
+                                    disowned=bool(est.fault()))
             self._mocap_fault_named = kind
         if self._disputed_on_the_ground and self._disputes >= DISPUTED_POSES and self.phase == Phase.LANDING and \
                 self._height < DISPUTED_LANDING_M:
