@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     key = MocapKey(bytes(range(32)))
     rng = np.random.default_rng(0)
     poses = [PoseSample(k + 1, 1.7e9 + 0.01 * k, rng.normal(0, 1, 3), euler_zyx(*rng.uniform(-1, 1, 3)),
-                        (rng.bytes(8), rng.bytes(8)))  # two challenges echoed (ignored without the key)
+                        tuple(rng.bytes(16) for _ in range(4)))  # four challenges echoed (ignored without the key)
              for k in range(a.samples)]
     plain = [encode(p) for p in poses]
     signed = [encode(p, key, KEY_EXPR) for p in poses]
@@ -52,9 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     encode_plain = _per_sample_us(encode, poses, a.repeats)
     encode_signed = _per_sample_us(lambda p: encode(p, key, KEY_EXPR), poses, a.repeats)
     where = challenge_key(KEY_EXPR)
-    nonces = [p.echoes[0] for p in poses]
-    challenges = [encode_challenge(n, key, where) for n in nonces]
-    sign = _per_sample_us(lambda n: encode_challenge(n, key, where), nonces, a.repeats)
+    tokens = [p.echoes[0] for p in poses]
+    challenges = [encode_challenge(n, key, where) for n in tokens]
+    sign = _per_sample_us(lambda n: encode_challenge(n, key, where), tokens, a.repeats)
     check = _per_sample_us(lambda c: decode_challenge(c[0], c[1], key, where), challenges, a.repeats)
     print_table(f"mocap samples: {a.samples} per run, median of {a.repeats} runs, one core", [
         "side", "without key (us)", "with key (us)", "ratio", "MAC cost (us)"], [

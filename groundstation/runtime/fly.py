@@ -562,7 +562,7 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
                        f"({m.key_file}): their publisher has another key, or none")
         elif sub.bad_stamps:  # they arrive, from the key's holder, and none was on time
             why = (f"the bridge hears no challenge of this ground station (access control must let it put on "
-                   f"{challenge_key(p.key)}; a bridge older than the challenges echoes none)"
+                   f"{challenge_key(p.key)} and the bridge subscribe to it)"
                    if sub.unechoed == sub.bad_stamps
                    else "held back on the way, or the bridge's clock is not this host's")
             unseen += (f": {sub.bad_stamps} samples arrived and were refused as late (last: {sub.last_rejection}): "

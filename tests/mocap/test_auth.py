@@ -41,14 +41,14 @@ def test_bad_key_files_are_one_line_errors_naming_the_file(tmp_path, content, mo
 
 def test_tag_binds_key_expression_attachment_and_payload():
     key = MocapKey(bytes(range(32)))
-    sample = PoseSample(7, 1000.25, np.array([0.1, 0.2, 1.0]), np.eye(3), (b"noncenon",))
+    sample = PoseSample(7, 1000.25, np.array([0.1, 0.2, 1.0]), np.eye(3), (b"challenger..0001",))
     payload, att = encode(sample, key, "mocap/a/pose")
     back = decode(payload, att, key, "mocap/a/pose")
-    assert len(att) == 48 and back.sequence == 7 and back.echoes == (b"noncenon",)
+    assert len(att) == 96 and back.sequence == 7 and back.echoes == (b"challenger..0001",)
     assert decode(payload, att).sequence == 7  # a subscriber without a key reads an authenticated stream
     other, _ = encode(PoseSample(7, 1000.25, np.array([0.1, 0.2, 1.5]), np.eye(3)))
     bad_att = struct.pack("<Qd", 7, 1000.5) + att[16:]
-    bad_echo = att[:16] + b"othernon" + att[24:]
+    bad_echo = att[:16] + b"challenger..0002" + att[32:]
     for p, a, k, expr in [(payload, att, key, "mocap/b/pose"),  # moved to another body's key
                           (other, att, key, "mocap/a/pose"),  # another pose under the tag
                           (payload, bad_att, key, "mocap/a/pose"),  # another stamp or sequence

@@ -298,8 +298,8 @@ def test_mocap_with_another_key_is_named_in_preflight(tmp_path):
 
 
 def test_a_bridge_that_hears_no_challenge_is_named_in_preflight(tmp_path, monkeypatch):
-    """A keyed bridge that never hears the ground station's challenges (access control forbids the put, or the
-    bridge predates them): every sample is refused as late, and preflight says why, naming the challenge key."""
+    """A keyed bridge that never hears the ground station's challenges (access control forbids the put): every
+    sample is refused as late, and preflight says why, naming the challenge key."""
     from groundstation.mocap import zenoh_link
 
     monkeypatch.setattr(zenoh_link, "decode_challenge", lambda *args: None)  # the bridge's side only: it hears none
