@@ -4,7 +4,9 @@ Each module is one vehicle (system id ``i + 1``, autopilot component 1) on its o
 on both ends, and follows :mod:`groundstation.backends.mavlink_wire`: it takes ``SET_ACTUATOR_CONTROL_TARGET``
 through a pass-through mixer, accepts offboard mode only while setpoints stream (as PX4 does), arms only in
 offboard, answers every ``COMMAND_LONG`` with ``COMMAND_ACK``, disarms on offboard loss after its
-``COM_OF_LOSS_T`` (with a disarm action), and latches flight termination. It streams ``HEARTBEAT`` (1 Hz),
+``COM_OF_LOSS_T`` (with a disarm action), and latches flight termination. It answers a ``TIMESYNC`` request
+(``tc1`` 0) with its time in ``tc1`` and the request's ``ts1``, and sends requests of its own (10 Hz), as PX4's
+mavlink module does. It streams ``HEARTBEAT`` (1 Hz),
 ``SYS_STATUS`` (10 Hz), ``ATTITUDE`` and ``SERVO_OUTPUT_RAW`` (``state_rate_hz``, or what
 ``MAV_CMD_SET_MESSAGE_INTERVAL`` asks for), and serves the parameters it uses (``PARAM_REQUEST_READ``,
 ``PARAM_SET``; stock PX4 values unless ``PeerConfig.params`` sets them): ``COM_OF_LOSS_T`` and the PWM range.
@@ -33,6 +35,8 @@ SETPOINT_STREAM_S = 0.5
 """Offboard is refused unless a setpoint arrived within this long, s (PX4 wants a stream before the switch)."""
 HEARTBEAT_S = 1.0
 SYS_STATUS_S = 0.1
+TIMESYNC_S = 0.1
+"""PX4's own TIMESYNC requests (its mavlink module streams them at 10 Hz)."""
 
 
 class Px4Rules:
@@ -85,7 +89,8 @@ class _Vehicle:
         self.intervals = {mav.MAVLINK_MSG_ID_ATTITUDE: state_interval,
                           mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: state_interval,
                           mav.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_S,
-                          mav.MAVLINK_MSG_ID_SYS_STATUS: SYS_STATUS_S}
+                          mav.MAVLINK_MSG_ID_SYS_STATUS: SYS_STATUS_S,
+                          mav.MAVLINK_MSG_ID_TIMESYNC: TIMESYNC_S}
         self.last_sent = dict.fromkeys(self.intervals, -np.inf)
 
 
@@ -150,6 +155,8 @@ class SimulatedPx4(ModulePeer):
             v.last_setpoint = now
             if v.offboard:
                 m.command(mw.from_controls(msg.controls, self.assembly.params.u_max), now)
+        elif kind == "TIMESYNC" and msg.tc1 == 0:  # a request (tc1 > 0 answers one of ours): answered at once
+            v.conn.mav.timesync_send(self._time_ns(now), msg.ts1)
         elif kind == "COMMAND_LONG" and msg.target_system == v.system_id:
             v.conn.mav.command_ack_send(msg.command, self._command(v, m, msg, now))
         elif kind in ("PARAM_REQUEST_READ", "PARAM_SET") and msg.target_system == v.system_id:
@@ -194,6 +201,11 @@ class SimulatedPx4(ModulePeer):
             return mav.MAV_RESULT_ACCEPTED
         return mav.MAV_RESULT_UNSUPPORTED
 
+    @staticmethod
+    def _time_ns(now: float) -> int:
+        """The module's clock (PX4's time since boot), ns: positive."""
+        return max(int(now * 1e9), 1)
+
     def _stream(self, i: int, v: _Vehicle, m, now: float) -> None:
         due = [k for k, dt in v.intervals.items() if now - v.last_sent[k] >= dt]
         for k in due:
@@ -206,6 +218,8 @@ class SimulatedPx4(ModulePeer):
                       else mav.MAV_STATE_ACTIVE if m.armed else mav.MAV_STATE_STANDBY)
             send.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base,
                                 mw.PX4_OFFBOARD_CUSTOM_MODE if v.offboard else 0, status)
+        if mav.MAVLINK_MSG_ID_TIMESYNC in due:
+            send.timesync_send(0, self._time_ns(now))
         if mav.MAVLINK_MSG_ID_SYS_STATUS in due:
             send.sys_status_send(0, 0, 0, 0, int(self.config.battery_v * 1e3), -1, -1, 0, 0, 0, 0, 0, 0)
         if mav.MAVLINK_MSG_ID_ATTITUDE in due:

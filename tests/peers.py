@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -87,6 +88,34 @@ def stopped_by_host(phase: str, reason: str, seen: Freezes) -> bool:
     longest = max(seen.lengths, default=0.0)
     return (phase == "emergency" and stall is not None and seen.realtime and longest >= HOST_FREEZE_S
             and int(stall.group(1)) * 1e-3 <= longest + STOP_SLACK_S)
+
+
+class HostStopped(Exception):
+    """The machine stopped under a flight (:func:`stopped_by_host`): the attempt is void, not failed."""
+
+
+ATTEMPTS = 3
+"""How many times :func:`attempted` flies a run the machine keeps stopping before it fails."""
+
+
+def raise_if_stopped_by_host(phase: str, reason: str, seen: Freezes) -> None:
+    """:class:`HostStopped` for a flight that ended in ``phase`` on ``reason`` while the probes saw ``seen``, if
+    :func:`stopped_by_host` says the machine stopped it."""
+    if stopped_by_host(phase, reason, seen):
+        raise HostStopped(f"{reason} (a CPU held off {max(seen.lengths) * 1e3:.0f} ms by the host)")
+
+
+def attempted(run: Callable, *args, label: str = ""):
+    """``run(*args)``, again (at most :data:`ATTEMPTS` times in all) while the machine stops a flight of it
+    (:class:`HostStopped`); every voided attempt is printed."""
+    for attempt in range(1, ATTEMPTS + 1):
+        try:
+            return run(*args)
+        except HostStopped as stop:
+            print(f"{label + ': ' if label else ''}{run.__name__}, attempt {attempt} of {ATTEMPTS} voided: {stop}")
+            if attempt == ATTEMPTS:
+                raise AssertionError(f"the machine stopped {ATTEMPTS} attempts in a row: {stop}") from stop
+    raise AssertionError("unreachable")
 
 
 def peer_process(tmp_path: Path, *args: str, as_world: bool = True) -> subprocess.Popen:

@@ -552,6 +552,9 @@ class CrazyflieBackend(BackendBase):
         ages = now - heard  # each state packet carries its module's gyro
         if self._isolated:
             ages[sorted(self._isolated)] = np.inf
+            # out of the flight: its link no longer lands or stops it, nor cuts the attitude loop's bandwidth
+            quality.latency_s[sorted(self._isolated)] = np.nan
+            quality.loss[sorted(self._isolated)] = np.nan
         faults = tuple(m.fault or ("" if ok else f"sends no state ({_age_text(now - m.heard)}): link lost or the "
                                                  f"module is off")
                        for m, ok in zip(self._modules, fresh, strict=True))

@@ -13,6 +13,11 @@ every module to offboard and arms it, and fails (motors commanded off) unless ev
 that disarmed on its own while the flight needs it (offboard loss, a failsafe), makes ``link_ok`` False, and the
 flight stops. On the vehicle, offboard loss after ``COM_OF_LOSS_T`` stops the motors if the ground station dies.
 
+The link's round trip is measured as PX4's own tools measure it: a ``TIMESYNC`` request (``tc1`` 0, our time in
+``ts1``) every ``timesync_period``, which PX4's mavlink module answers at once with its time in ``tc1`` and the
+``ts1`` it got; preflight refuses a module that does not answer or answers too slowly (``max_latency``), and in
+flight :attr:`~groundstation.backends.base.Telemetry.link_latency_s` carries it to the flight's link bounds.
+
 One flight owns a module set on this host (a lock per link, :mod:`groundstation.backends.link_lock`); PX4 <= 1.13
 has no owner of its own, so a ground station on another host is kept off only by the network. Preflight refuses
 two links that reach one vehicle (one system id) and reports each module's attitude for the flight's placement
@@ -26,7 +31,9 @@ backend closes.
 
 from __future__ import annotations
 
+import statistics
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +66,17 @@ class MavlinkSettings:
     """us: PWM_MAIN_MIN of the modules (the mixer's output for a zero command)."""
     pwm_max: int = 2000
     """us: PWM_MAIN_MAX of the modules (full thrust)."""
+    timesync_period: float = 0.01
+    """A ``TIMESYNC`` probe goes to each module this often (at most once a control period), s: its answer
+    measures the link's round trip."""
+    latency_samples: int = 5
+    """The round trip is the median of this many newest answered probes (at 250 Hz a probe every third period:
+    60 ms)."""
+    max_latency: float = 0.014
+    """Preflight: largest acceptable round trip (the median), s."""
+    command_period: float = 0.004
+    """The flight's control period: preflight reads the links at it, so the round trips it measures (each a lower
+    bound, short by up to one read's wait) are the flight's, s."""
 
 
 HEARTBEAT_S = 1.0
@@ -69,6 +87,11 @@ RETRY_S = 0.1
 """Interval between repeats of an unacknowledged command, s."""
 STOP_CONFIRM_S = 0.5
 """How long closing the backend repeats an unconfirmed stop or disarm, s."""
+SILENT_PROBES = 3
+"""Unanswered probes that make the oldest one's age a round trip: one left over from before a pause in probing
+(arming sends none) is not a silence."""
+MAX_PROBES = 256
+"""Unanswered probes kept per module (the oldest always: its age is how long the answers have stopped)."""
 SETPOINT_LEAD_S = 1.0
 """Zero setpoints streamed before the switch to offboard, s: PX4 refuses offboard without a setpoint stream, and
 its documentation (v1.14 on) asks for more than 1 s of it before arming in offboard."""
@@ -99,6 +122,11 @@ class _Module:
         self.pending_sent = -np.inf
         self.up: np.ndarray | None = None
         """Up in the module's frame from its newest ATTITUDE (unit)."""
+        self.probes: dict[int, float] = {}
+        """``ts1`` of each TIMESYNC probe sent since the newest answered one -> when it was sent, s (oldest first:
+        an answer drops the probes before its own, lost or overtaken)."""
+        self.rtts: deque[float] = deque()
+        """The newest round trips measured, s."""
 
 
 class MavlinkBackend(BackendBase):
@@ -121,6 +149,9 @@ class MavlinkBackend(BackendBase):
         self._gyro = np.zeros((n, 3))
         self._stop_sent = False
         self._last_heartbeat = -np.inf
+        self._last_probe = -np.inf
+        self._polled = -np.inf
+        """When the link was last read: an answer found now arrived after that (a lower bound on its time)."""
         self._locks = LinkLocks(self.links)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -141,15 +172,20 @@ class MavlinkBackend(BackendBase):
     def preflight(self) -> PreflightReport:
         if not self._modules:
             return PreflightReport(False, ("not connected",))
+        s = self.settings
         since = self._clock()
-        deadline = since + self.settings.preflight_timeout
+        deadline = since + s.preflight_timeout
         requested = [False] * len(self._modules)
+        for m in self._modules:
+            m.rtts.clear()  # measured afresh: the link as it is now
+            m.probes.clear()
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
-        while self._clock() < deadline and not all(m.battery_heard >= since and r
+        while self._clock() < deadline and not all(m.battery_heard >= since and r and len(m.rtts) >= s.latency_samples
                                                    for m, r in zip(self._modules, requested, strict=True)):
             self._heartbeat(force=True)
             self._send_controls(np.zeros_like(self._applied))
-            time.sleep(0.01)
+            self._probe()
+            time.sleep(s.command_period)
             self._drain()
             for i, m in enumerate(self._modules):
                 if m.system_id is not None and not requested[i]:
@@ -162,6 +198,13 @@ class MavlinkBackend(BackendBase):
         issues += [f"module {i} battery {v:.2f} V < {self.settings.min_battery_v:g} V"
                    for i, v in enumerate(self._battery)
                    if self._modules[i].battery_heard >= since and v < self.settings.min_battery_v]
+        answering = [m.system_id is not None and m.heard >= since for m in self._modules]
+        issues += [f"module {i} ({self.links[i]}) does not answer TIMESYNC: its link's round trip cannot be measured"
+                   for i, m in enumerate(self._modules) if answering[i] and not m.rtts]
+        latency = self.link_latency()
+        issues += [f"module {i} ({self.links[i]}) link round trip {latency[i] * 1e3:.0f} ms > "
+                   f"{s.max_latency * 1e3:g} ms" for i in range(len(self._modules))
+                   if answering[i] and self._modules[i].rtts and latency[i] > s.max_latency]
         issues += [f"module {i} is flight-terminated (reboot it)" for i, m in enumerate(self._modules) if m.terminated]
         issues += [f"module {i} is already armed" for i, m in enumerate(self._modules) if m.armed]
         first: dict[int, int] = {}
@@ -206,6 +249,7 @@ class MavlinkBackend(BackendBase):
         """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; zero unless armed."""
         self._send_controls(applied_command(u, self._applied.size, self._armed, self.u_max))
         self._heartbeat()
+        self._probe()
         self._repeat_pending()
 
     def telemetry(self) -> Telemetry:
@@ -225,7 +269,25 @@ class MavlinkBackend(BackendBase):
                          link_ok=bool(self._modules) and fresh and holding, motors=self._applied.copy(),
                          gyro_age_s=float(now - gyro_heard),
                          module_gyro_ages_s=now - np.array([m.gyro_heard for m in self._modules]),
-                         battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates)
+                         battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates,
+                         link_latency_s=self.link_latency())
+
+    def link_latency(self) -> np.ndarray:
+        """Per module, the median of its newest round trips (``latency_samples``), s; NaN until one is measured.
+        Each is a lower bound: from the probe's send to the last read of the link that had not found its answer (a
+        busy ground station's late reads are not the link's). Answers that stop (or take longer than the link's
+        timeout) while the rest of the link flows cannot hold an old median: once the oldest probe sent since the
+        newest answer is ``link_timeout`` old at the last read and :data:`SILENT_PROBES` have gone since, its age is
+        the round trip (a lower bound too; a few lost probes in a row do not reach it)."""
+        out = []
+        for m in self._modules:
+            latency = statistics.median(m.rtts) if m.rtts else np.nan
+            if len(m.probes) >= SILENT_PROBES:
+                waiting = self._polled - next(iter(m.probes.values()))
+                if waiting >= self.settings.link_timeout:
+                    latency = waiting if np.isnan(latency) else max(latency, waiting)
+            out.append(latency)
+        return np.array(out)
 
     def disarm(self) -> None:
         """End a flight normally: zero controls and a plain disarm (no termination: the modules can fly again)."""
@@ -274,6 +336,22 @@ class MavlinkBackend(BackendBase):
         self._last_heartbeat = now
         for m in self._modules:
             m.conn.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+
+    def _probe(self) -> None:
+        """A ``TIMESYNC`` request (``tc1`` 0) to each module every ``timesync_period``: PX4 answers at once with its
+        own time in ``tc1`` and ``ts1`` as sent, which names the probe."""
+        now = self._clock()
+        if now - self._last_probe < self.settings.timesync_period:
+            return
+        self._last_probe = now
+        ts1 = time.monotonic_ns()
+        for m in self._modules:
+            if m.system_id is None:
+                continue
+            if len(m.probes) >= MAX_PROBES:  # answers stopped: keep the oldest, drop the next
+                del m.probes[list(m.probes)[1]]
+            m.probes[ts1] = now
+            m.conn.mav.timesync_send(0, ts1)
 
     def _send_controls(self, u: np.ndarray) -> None:
         t_us = int(self._clock() * 1e6)
@@ -337,6 +415,7 @@ class MavlinkBackend(BackendBase):
     def _drain(self) -> None:
         now = self._clock()
         s = self.settings
+        polled, self._polled = self._polled, now
         for i, m in enumerate(self._modules):
             while (msg := m.conn.recv_match(blocking=False)) is not None:
                 kind = msg.get_type()
@@ -373,6 +452,18 @@ class MavlinkBackend(BackendBase):
                 elif kind == "SYS_STATUS":
                     self._battery[i] = msg.voltage_battery * 1e-3
                     m.battery_heard = now
+                elif kind == "TIMESYNC":
+                    # An answer names one of our probes (ts1) and carries the module's time (tc1 > 0); the
+                    # module's own requests (tc1 0), a repeated answer, one for a probe we did not send, and one
+                    # from another component of the vehicle (TIMESYNC is broadcast: a companion computer answers
+                    # too, and would measure only the way to itself) do not measure anything.
+                    if msg.tc1 <= 0 or msg.get_srcComponent() != m.component_id or msg.ts1 not in m.probes:
+                        continue
+                    sent = m.probes[msg.ts1]
+                    m.probes = {k: t for k, t in m.probes.items() if t > sent}
+                    m.rtts.append(max(polled - sent, 0.0))
+                    if len(m.rtts) > s.latency_samples:
+                        m.rtts.popleft()
                 else:
                     continue
                 m.heard = now

@@ -22,7 +22,7 @@ does, the desired attitude is adapted to ``F'_d`` so the force becomes producibl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -159,6 +159,22 @@ def _lean_limited(force: np.ndarray, max_tilt: float) -> np.ndarray:
         return force
     k = most / horizontal
     return np.array([force[0] * k, force[1] * k, force[2]])
+
+
+def delay_limited(gains: Gains, delay_s: float, bound_s: float) -> Gains:
+    """``gains`` for a loop delayed ``delay_s`` (the modules' round trip and a period), when they were meant for at
+    most ``bound_s``: beyond it the attitude and position bandwidths are both cut by the square of the ratio, so the
+    attitude loop stays the faster of the two (cut alone, it fell below the position loop at a 37 ms round trip).
+    Holding the phase the attitude loop loses at its crossover (bandwidth times delay) to its value at the bound, a
+    proportional cut, was not enough where the bound itself is marginal. Measured in SITL, landings (3 s) on links
+    slowed in flight, max tilt: PX4 modules, 8 ms each way 66 deg uncut, 38 deg with a proportional cut of the
+    attitude loop, 8 deg squared, 14 deg squared on both loops; 12 ms each way tipped past 75 deg uncut, 1-3 deg cut
+    (either way); 22 ms each way 22 deg with the attitude loop cut, 4 deg with both. A delay that is not finite
+    leaves the gains: the flight stops on it (``link_stop_latency_s``) before it flies a period on them."""
+    if not delay_s > bound_s or not math.isfinite(delay_s):
+        return gains
+    k = (bound_s / delay_s) ** 2
+    return replace(gains, attitude_hz=gains.attitude_hz * k, position_hz=gains.position_hz * k)
 
 
 def control(state: RigidState, sp: Setpoint, model: ControlModel, gains: Gains) -> ControlOutput:

@@ -117,7 +117,8 @@ TELEMETRY = _obj("what the modules report, a tenth of the control rate", {
     "modules": _modules("per module (each member absent when the backend does not report it, or not yet)", {
         "rotor_speed_sq_rad2_s2": _vec(4, "rotor inputs applied q = 1..4: rotor speed squared, rad^2/s^2"),
         "battery_v": _num("battery, V"),
-        "link_latency_s": _num("command round trip, s"),
+        "link_latency_s": _num("round trip of the module's link (a command's echo on Crazyflie, a TIMESYNC answer "
+                               "on MAVLink), s"),
         "link_loss_frac": _num("fraction of recent commands the module did not accept")}),
 }, required=("t_s", "link_ok"))
 
@@ -130,6 +131,8 @@ MOCAP_STATS = _obj("the pose subscriber's counters since the start, about once a
     "foreign": {"type": "integer", "description": "samples from a publisher other than the body's source"},
     "unauthenticated": {"type": "integer", "description": "samples without a valid MAC (mocap.key_file set)"},
     "bad_stamps": {"type": "integer", "description": "samples whose stamp disagrees with their arrival time"},
+    "unechoed": {"type": "integer", "description": "of the bad stamps, samples echoing none of this ground "
+                                                   "station's challenges of the last second (mocap.key_file set)"},
     "conflicts": {"type": "integer", "description": "samples out of sequence under the source's id (a copy)"},
     "resyncs": {"type": "integer", "description": "times the estimate followed a new consistent track"},
     "duplicates": {"type": "integer", "description": "exact copies of the newest sample, dropped"},

@@ -71,6 +71,14 @@ class StampClock:
         s = self.settings
         return min(offset + s.max_drift * max(0.0, t - since), self._least + s.max_rise_s)
 
+    def capped(self, t: float) -> bool:
+        """Whether the offset allowed at local time ``t`` is held at ``max_rise_s`` above the stream's least (the
+        drift allowed since its fastest path would take it further)."""
+        if self._floor is None:
+            return False
+        offset, since, _ = self._floor
+        return offset + self.settings.max_drift * max(0.0, t - since) > self._least + self.settings.max_rise_s
+
     def skew(self, stamp: float, arrival: float) -> float:
         """How much later than the fastest path (drift allowed) a sample arriving at ``arrival`` came, s (negative:
         faster; 0 before the first)."""

@@ -479,7 +479,14 @@ class PoseSubscriber:
             return False
         self.rejected += 1
         self.bad_stamps += 1
-        self.last_rejection = stale or why.format(f"{self._stamps.disagreement(pose.stamp, before, now) * 1e3:+.0f}")
+        late = self._stamps.disagreement(pose.stamp, before, now)
+        self.last_rejection = stale or why.format(f"{late * 1e3:+.0f}")
+        if not stale and late > 0 and self._stamps.capped(now):
+            # The operator's question is why a stream that flowed is late now: its clock has drifted (or its
+            # delay grown) as far as the bound allows since it began.
+            self.last_rejection += (f", its clock offset already {self._stamps.settings.max_rise_s * 1e3:.0f} ms "
+                                    f"above the stream's least (mocap.clock_drift_s): the clocks drifted apart or "
+                                    f"the delay grew")
         return True
 
     def _may_hand_over(self, now: float) -> bool:

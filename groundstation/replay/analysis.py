@@ -157,7 +157,7 @@ class _Modules:
             ok = np.isfinite(lat)
             if self.latency_max is None:
                 self.latency_max, self.latency_sum = np.zeros(lat.size), np.zeros(lat.size)
-                self.latency_n, self.loss_max = np.zeros(lat.size), np.zeros(lat.size)
+                self.latency_n, self.loss_max = np.zeros(lat.size), np.full(lat.size, np.nan)  # NaN: not measured
             self.latency_max = np.where(ok, np.maximum(self.latency_max, np.where(ok, lat, 0)), self.latency_max)
             self.latency_sum += np.where(ok, lat, 0.0)
             self.latency_n += ok

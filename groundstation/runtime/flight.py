@@ -40,7 +40,7 @@ from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import GRAVITY
 from groundstation.backends.base import Backend, SimulatedBackend, Telemetry
 from groundstation.control.allocation import allocate, allocate_bounded
-from groundstation.control.geometric import Gains, control, reference_attitude
+from groundstation.control.geometric import Gains, control, delay_limited, reference_attitude
 from groundstation.control.model import ControlModel
 from groundstation.control.phase import Phase
 from groundstation.control.state import RigidState, Setpoint
@@ -182,8 +182,11 @@ class FailsafePolicy:
     250 Hz with the two-module assembly (the round trip steps by one 4 ms poll period): loopback 4 ms, one
     module per emulated Crazyradio 8 ms (at most 12 ms); through a delaying relay, 2 ms of added one-way delay
     (8 ms) flies as without, 5 ms (16 ms) triples the attitude error, 10 ms (24 ms) flips it."""
-    link_stop_latency_s: float = 0.020
-    """Beyond this round trip the motors stop whatever the policy: too slow to land on, s."""
+    link_stop_latency_s: float = 0.050
+    """Beyond this round trip the motors stop whatever the policy: too slow to land on, s. Between the two bounds
+    the flight lands with its attitude bandwidth cut to the delay (:func:`~groundstation.control.geometric.
+    delay_limited`): measured in SITL, landings at round trips of 19-47 ms touched down tilting at most 1-22 deg;
+    the 20 ms this was before dropped the V from 0.9 m for one Crazyflie link slowed 8-9 ms each way."""
     max_link_loss: float = 0.1
     """A module that does not accept this fraction of commands (lost or reordered) degrades the link."""
     on_link_degraded: Literal["land", "stop"] = "land"
@@ -423,6 +426,8 @@ class Flight:
         self._rate_window = (0.0, 0)
         """(loop time s, periods run) at the start of the current rate window."""
         self._rate_hz: float | None = None
+        self._bandwidth_cut = False
+        """The gains have been cut for a slow link (:func:`delay_limited`): said once."""
         self.phase = Phase.PREFLIGHT
         self.reason = ""
         self.metrics = FlightMetrics(assembly.n)
@@ -810,6 +815,19 @@ class Flight:
                                                        f"{self.policy.max_tracking_error_m:g} m")
         sp = replace(sp, omega=self._turn_rate(t, sp, "plan" if reference is self.plan else self._landing[0]))
         gains = self.gains if self.gyros.lost_since is None else self._gains_without_gyros
+        lat = telemetry.link_latency_s
+        if lat.size and np.nanmax(lat, initial=0.0) > self.policy.max_link_latency_s:
+            # The modules' mean round trip: every module's rotors act on each axis, so one late module of two
+            # delays half the loop (one Crazyflie link of two slowed 20 ms each way: cut on its own round trip
+            # the V tilted 16 deg in a 3 s landing, on the mean 1 deg).
+            period = self._stats.period
+            cut = delay_limited(gains, float(np.nanmean(lat)) + period, self.policy.max_link_latency_s + period)
+            if cut is not gains and not self._bandwidth_cut:
+                self._bandwidth_cut = True
+                self._event(t, "warning", f"attitude and position bandwidths cut to {cut.attitude_hz:.2f} and "
+                                          f"{cut.position_hz:.2f} Hz for the links' mean round trip "
+                                          f"{np.nanmean(lat) * 1e3:.0f} ms")
+            gains = cut
         out = control(state, sp, self.model, gains)
         if self.phase == Phase.LANDING and self._height < PRESS_HEIGHT_M and \
                 (self._landing is not None and self._landing[2] or age > PRESS_STALE_S):

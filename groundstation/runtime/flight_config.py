@@ -308,9 +308,10 @@ class FailsafeSection:
     geofence_upper: tuple[_FenceM, _FenceM, _FenceM] = FailsafePolicy.geofence_upper
     """m, each coordinate within +-:data:`MAX_GEOFENCE_M`."""
     max_link_latency_s: float = Field(FailsafePolicy.max_link_latency_s, gt=0, le=MAX_REACTION_S)
-    """crazyflie: a module's command round trip beyond this (median of its newest echoes) is a degraded link, s."""
+    """A module's command round trip beyond this (median of its newest echoes, or of its newest TIMESYNC answers
+    on MAVLink) is a degraded link, s."""
     link_stop_latency_s: float = Field(FailsafePolicy.link_stop_latency_s, gt=0, le=MAX_REACTION_S)
-    """crazyflie: beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
+    """Beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
     max_link_loss: float = Field(FailsafePolicy.max_link_loss, ge=MIN_LINK_LOSS, le=1)
     """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded (at least
     :data:`MIN_LINK_LOSS`)."""

@@ -200,8 +200,9 @@ class _LoggedPose:
                                               "rejected": sub.rejected, "malformed": sub.malformed,
                                               "missed": sub.missed, "foreign": sub.foreign,
                                               "unauthenticated": sub.unauthenticated, "bad_stamps": sub.bad_stamps,
-                                              "conflicts": sub.conflicts, "resyncs": sub.resyncs,
-                                              "duplicates": sub.duplicates, "handovers": sub.handovers,
+                                              "unechoed": sub.unechoed, "conflicts": sub.conflicts,
+                                              "resyncs": sub.resyncs, "duplicates": sub.duplicates,
+                                              "handovers": sub.handovers,
                                               "rate_hz": rate},
                              self._to_log(now))
             self._stats_at = (now, sub.accepted)

@@ -41,10 +41,11 @@ def crazyflie_config_issues(cfg: FlightConfig, assembly: Assembly) -> list[tuple
 
 
 def open_mavlink(cfg: FlightConfig, assembly: Assembly) -> MavlinkBackend:
-    b = cfg.backend
+    b, f = cfg.backend, cfg.failsafe
     return MavlinkBackend(b.modules, assembly.params.u_max, assembly.module_rotations,
                           MavlinkSettings(link_timeout=b.link_timeout_s, min_battery_v=b.min_battery_v,
-                                          pwm_min=b.pwm_min, pwm_max=b.pwm_max))
+                                          pwm_min=b.pwm_min, pwm_max=b.pwm_max, max_latency=f.max_link_latency_s,
+                                          command_period=1.0 / cfg.rate_hz))
 
 
 class HardwareModules:

@@ -15,6 +15,9 @@ from sim.mavlink_peer import SimulatedPx4
 from tests import peers
 from tests.peers import ASM, U_MAX, hold, stop_peer
 
+UNTIMED = MavlinkSettings(max_latency=0.5)
+"""For tests that are not about the round-trip bound: the simulated modules are threads of this (loaded) process."""
+
 
 def start_peer(port: int, mocap_port: int, **kw):
     return peers.start_peer(SimulatedPx4, port, mocap_port, **kw)
@@ -53,7 +56,7 @@ def test_actuator_message_survives_the_wire():
 def test_commands_reach_the_modules_and_the_state_comes_back():
     peer, th = start_peer(14600, 7481)
     try:
-        with MavlinkBackend(links(14600), U_MAX, ASM.module_rotations) as be:
+        with MavlinkBackend(links(14600), U_MAX, ASM.module_rotations, UNTIMED) as be:
             peers.check_commands_and_state(be, peer)  # ATTITUDE rates arrive in PX4's FRD frame
             assert be.preflight().issues == ("module 0 is flight-terminated (reboot it)",
                                              "module 1 is flight-terminated (reboot it)")
@@ -125,7 +128,7 @@ def test_preflight_and_arm_name_silent_and_weak_modules():
             be.arm()
     peer, th = start_peer(14618, 7484, battery_v=3.3)
     try:
-        with MavlinkBackend(links(14618), U_MAX, ASM.module_rotations) as be:
+        with MavlinkBackend(links(14618), U_MAX, ASM.module_rotations, UNTIMED) as be:
             assert be.preflight().issues == ("module 0 battery 3.30 V < 3.5 V", "module 1 battery 3.30 V < 3.5 V")
     finally:
         stop_peer(peer, th)
@@ -232,8 +235,9 @@ def test_px4_attitude_round_trip_and_up_in_the_module_frame():
 def test_module_gravity_and_two_links_to_one_vehicle():
     peer, th = start_peer(14590, 7491)
     try:
-        with MavlinkBackend(links(14590), U_MAX, ASM.module_rotations) as be:
+        with MavlinkBackend(links(14590), U_MAX, ASM.module_rotations, UNTIMED) as be:
             assert be.preflight().ok
+            assert 0.0 <= be.link_latency().max() < 0.5  # the simulated PX4 answers TIMESYNC
             state = peer.sim.true_state()
             expected = np.array([(state.rotation @ r).T @ [0.0, 0.0, 1.0] for r in ASM.module_rotations])
             np.testing.assert_allclose(be.module_gravity(), expected, atol=2e-3)
@@ -250,3 +254,113 @@ def test_module_gravity_and_two_links_to_one_vehicle():
                 "id 1): two links reach it") in issues or any(i.endswith("does not answer") for i in issues), issues
     finally:
         stop_peer(peer, th)
+
+
+def _vehicle(port: int, answer_after: float | None, silent: threading.Event | None = None, answerer: int = 1):
+    """A PX4-like vehicle on ``port``: heartbeats, battery and attitude; with ``answer_after`` it answers each
+    TIMESYNC request that long after it came (and again, a repeat), and sends a forged answer at once (a ``ts1``
+    never sent) and requests of its own (``tc1`` 0), none of which may count as a round trip; once ``silent`` is
+    set it answers no more (its other streams go on); ``answerer``: the component id its answers come from (1, the
+    autopilot; 191, a companion computer on the vehicle). Returns (stop, thread, connection)."""
+    vehicle = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+    stop = threading.Event()
+    due: list[tuple[float, int]] = []
+
+    def answer(tc1: int, ts1: int) -> None:
+        vehicle.mav.srcComponent = answerer
+        vehicle.mav.timesync_send(tc1, ts1)
+        vehicle.mav.srcComponent = 1
+
+    def serve() -> None:
+        while not stop.is_set():
+            msg = vehicle.recv_match(blocking=True, timeout=0.002)
+            now = time.monotonic()
+            for when, ts1 in [d for d in due if d[0] <= now]:
+                due.remove((when, ts1))
+                for _ in range(2):
+                    answer(int(now * 1e9), ts1)
+            if msg is None:
+                continue
+            kind = msg.get_type()
+            if kind == "HEARTBEAT":
+                vehicle.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_QUADROTOR, mavutil.mavlink.MAV_AUTOPILOT_PX4,
+                                           0, 0, 3)
+                vehicle.mav.sys_status_send(0, 0, 0, 0, 4000, -1, -1, 0, 0, 0, 0, 0, 0)
+                vehicle.mav.attitude_send(0, 0, 0, 0, 0, 0, 0)
+            elif kind == "TIMESYNC" and msg.tc1 == 0 and answer_after is not None and not (silent and silent.is_set()):
+                due.append((now + answer_after, msg.ts1))
+                answer(int(now * 1e9), msg.ts1 + 1)  # names no probe
+                vehicle.mav.timesync_send(0, int(now * 1e9))  # the vehicle's own request
+
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    return stop, th, vehicle
+
+
+def test_the_round_trip_is_measured_by_timesync_and_bounded_in_preflight():
+    """The answer to each probe measures the link; forged, repeated answers and the vehicle's own requests do not.
+    Each round trip is a lower bound (to the last read that had not found the answer): a vehicle answering 30 ms
+    late reads at least 30 ms less one read's wait (10 ms in preflight)."""
+    stop, th, vehicle = _vehicle(14654, answer_after=0.03)
+    try:
+        with MavlinkBackend(["udpout:127.0.0.1:14654"], U_MAX, ASM.module_rotations[:1]) as be:
+            issues = be.preflight().issues
+            latency = be.link_latency()[0]
+            assert 0.019 <= latency < 0.2, latency  # upper: a loaded machine wakes the vehicle late, never early
+            assert issues == (f"module 0 (udpout:127.0.0.1:14654) link round trip {latency * 1e3:.0f} ms > 14 ms",)
+            assert be.telemetry().link_latency_s[0] >= 0.019  # what the flight is given (probes still answered)
+    finally:
+        stop.set()
+        th.join(2)
+        vehicle.close()
+
+
+def test_a_module_that_does_not_answer_timesync_is_refused():
+    stop, th, vehicle = _vehicle(14656, answer_after=None)
+    try:
+        with MavlinkBackend(["udpout:127.0.0.1:14656"], U_MAX, ASM.module_rotations[:1],
+                            MavlinkSettings(preflight_timeout=0.5)) as be:
+            assert be.preflight().issues == ("module 0 (udpout:127.0.0.1:14656) does not answer TIMESYNC: its link's "
+                                             "round trip cannot be measured",)
+            assert be.link_latency()[0] >= 0.2  # no answer yet: at least as long as the probes have waited
+    finally:
+        stop.set()
+        th.join(2)
+        vehicle.close()
+
+
+def test_answers_that_stop_do_not_hold_the_last_round_trip():
+    """A vehicle whose TIMESYNC answers stop while its other streams go on (PX4 drops what its full transmit buffer
+    cannot take): the round trip read is the silence, at least the link timeout, not the last median (0 ms)."""
+    silent = threading.Event()
+    stop, th, vehicle = _vehicle(14658, answer_after=0.0, silent=silent)
+    try:
+        with MavlinkBackend(["udpout:127.0.0.1:14658"], U_MAX, ASM.module_rotations[:1],
+                            MavlinkSettings(link_timeout=0.1, max_latency=0.5)) as be:
+            assert be.preflight().ok and be.link_latency()[0] < 0.1
+            silent.set()
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 0.5:
+                be.send(np.zeros(4))
+                be.telemetry()
+                time.sleep(0.004)
+            assert be.telemetry().link_latency_s[0] >= 0.1
+    finally:
+        stop.set()
+        th.join(2)
+        vehicle.close()
+
+
+def test_answers_from_another_component_do_not_measure_the_link():
+    """TIMESYNC is broadcast: a companion computer on the vehicle (component 191) answering measures only the way
+    to itself, not to the autopilot that flies."""
+    stop, th, vehicle = _vehicle(14660, answer_after=0.0, answerer=191)
+    try:
+        with MavlinkBackend(["udpout:127.0.0.1:14660"], U_MAX, ASM.module_rotations[:1],
+                            MavlinkSettings(preflight_timeout=0.5)) as be:
+            assert be.preflight().issues == ("module 0 (udpout:127.0.0.1:14660) does not answer TIMESYNC: its link's "
+                                             "round trip cannot be measured",)
+    finally:
+        stop.set()
+        th.join(2)
+        vehicle.close()

@@ -1,10 +1,12 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from groundstation.assembly.assembly import Assembly
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.topology import Topology
-from groundstation.control.geometric import Gains, adapt_attitude, control, free_angles
+from groundstation.control.geometric import Gains, adapt_attitude, control, delay_limited, free_angles
 from groundstation.control.model import ControlModel
 from groundstation.control.state import RigidState, Setpoint
 from groundstation.control.trajectory import euler_zyx, roll_pitch_yaw
@@ -119,3 +121,13 @@ def test_a_reference_far_off_asks_for_a_bounded_lean_keeping_the_altitude_part(m
     wp = 2 * np.pi * Gains().position_hz
     np.testing.assert_allclose(f, [model.mass * wp ** 2 * 0.03, model.mass * wp ** 2 * 0.04, model.mass * 9.81],
                                rtol=1e-3)
+
+
+def test_delay_limited_cuts_both_bandwidths_with_the_square_of_the_delay_beyond_its_bound():
+    gains = Gains(attitude_hz=4.0, position_hz=0.8)
+    assert delay_limited(gains, 0.018, 0.018) is gains and delay_limited(gains, 0.010, 0.018) is gains
+    cut = delay_limited(gains, 0.036, 0.018)  # twice the delay: a quarter of each bandwidth, their ratio kept
+    assert cut.attitude_hz == pytest.approx(1.0) and cut.position_hz == pytest.approx(0.2)
+    assert replace(cut, attitude_hz=4.0, position_hz=0.8) == gains  # dampings and the lean bound as they were
+    assert delay_limited(gains, float("nan"), 0.018) is gains  # nothing measured: nothing cut
+    assert delay_limited(gains, float("inf"), 0.018) is gains  # the stop bound acts first

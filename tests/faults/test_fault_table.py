@@ -26,7 +26,7 @@ from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
 from tests.disks import tiny_disk
 from tests.faults.table import Fault, bad_input, link_or_load, lying_mocap, module_fault, process_fault, rows
-from tests.peers import ROOT, host_freezes, peer_process, stopped_by_host, world_priority
+from tests.peers import ROOT, host_freezes, peer_process, raise_if_stopped_by_host, stopped_by_host, world_priority
 from tests.runtime.test_fly import TRACK_START_S, config_with, quick_phases, read_log, sitl_config
 
 PEER_PORT, RELAY_PORT = 19900, 19910
@@ -128,7 +128,7 @@ def _hostile_flight(tmp_path, mode: str, after: float = 4.5, key_file: Path | No
     """A dry run whose ground station listens for mocap (the simulator and the attacker connect to it), attacked
     ``after`` s after its start; with ``key_file`` the flight and its simulated mocap share that key (the attacker
     has none); ``changes`` to the config, ``flight``: more of :func:`fly`'s arguments (faults). Returns the flight's
-    result and its log."""
+    result and its log; raises ``HostStopped`` for a flight the machine stopped (the row flies again)."""
     mocap = "latency_s = 0.005\nlisten = true" + (f'\nkey_file = "{key_file}"' if key_file else "")
     cfg = config_with(tmp_path, endpoint=HOSTILE, **{"latency_s = 0.005": mocap}, **(changes or {}))
     attacker = subprocess.Popen([sys.executable, "-m", "tests.faults.hostile_mocap", "--connect", HOSTILE,
@@ -136,11 +136,13 @@ def _hostile_flight(tmp_path, mode: str, after: float = 4.5, key_file: Path | No
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     log = tmp_path / f"{mode}.mcap"
     try:
-        res = fly(cfg, duration=4.5, log_path=log, **flight)
+        with host_freezes() as seen:
+            res = fly(cfg, duration=4.5, log_path=log, **flight)
     finally:
         attacker.kill()
         _, err = attacker.communicate(timeout=10)
     assert b"Traceback" not in err, err.decode()  # the attack ran as written
+    raise_if_stopped_by_host(res.phase, res.reason, seen)
     return res, log
 
 
@@ -315,7 +317,7 @@ def _completed_unless_the_host_stopped(run: subprocess.CompletedProcess, seen) -
     assert run.returncode == 0 and summary["phase"] == "done", run.stderr
 
 
-@link_or_load("the shipped Crazyflie SITL config with its shipped bounds (round trip 14 and 20 ms, link timeout "
+@link_or_load("the shipped Crazyflie SITL config with its shipped bounds (round trip 14 and 50 ms, link timeout "
               "0.1 s), its modules a plain `sim-peer` as a user starts it, beside a busy process on each core (load "
               "4)",
               "the flight completes (exit 0), never on the round trip; if the host stops the machine's CPUs ~100 ms "
@@ -324,7 +326,7 @@ def f_shipped_crazyflie_sitl_beside_two_hogs(cli, tmp_path):
     port, mocap = 19930, "tcp/127.0.0.1:7433"
     text = (ROOT / "configs/flights/toy_figure8_crazyflie_sitl.toml").read_text()
     assert all(bound in text for bound in ("link_timeout_s = 0.1", "max_link_latency_s = 0.014",
-                                           "link_stop_latency_s = 0.020"))  # the bounds it ships with
+                                           "link_stop_latency_s = 0.050"))  # the bounds it ships with
     text = quick_phases(text.replace('"../', f'"{ROOT / "configs"}/').replace("19850", str(port))
                         .replace("19851", str(port + 1)).replace("tcp/127.0.0.1:7448", mocap))
     cfg = tmp_path / "shipped.toml"
@@ -445,7 +447,7 @@ def f_link_30ms_in_flight(cli, tmp_path):
     with _relayed(tmp_path, delay_ms=30, after=6.0) as cfg:
         log = tmp_path / "late.mcap"
         res = fly(cfg, duration=5.0, log_path=log)
-    assert res.phase == "emergency" and res.reason.startswith("link degraded: module") and "> 20 ms" in res.reason
+    assert res.phase == "emergency" and res.reason.startswith("link degraded: module") and "> 50 ms" in res.reason
     assert _max_tilt_deg(log) < 20.0
 
 
@@ -500,7 +502,8 @@ def f_params_silent_modules(cli, tmp_path):
               "arms (commands repeated until acknowledged), flies, lands")
 def f_mavlink_5_percent_loss(cli, tmp_path):
     relay = subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", "19970", "--target", "19960",
-                              "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL)
+                              "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL,
+                             preexec_fn=world_priority)
     peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", "mavlink", "--port",
                         "19960", "--mocap", "tcp/127.0.0.1:7497", "--params",
                         str(ROOT / "firmware_params/px4/module_params.toml"))

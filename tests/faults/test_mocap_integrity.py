@@ -109,6 +109,7 @@ def f_mocap_keyed_forger(cli, tmp_path):
     res, stats = _attacked(tmp_path, "copy-id", keyed=True)
     assert res.phase == "done" and res.nominal, res.reason
     assert stats["unauthenticated"] > 50 and stats["conflicts"] == 0 and res.metrics.pos_rmse_m < 0.03
+    assert stats["unechoed"] == 0  # the genuine samples, each echoing a fresh challenge
 
 
 @lying_mocap("authenticated mocap: the genuine samples captured and re-sent 0.1 s later (valid MACs), mid-flight",

@@ -110,7 +110,7 @@ def _second_fly(cfg, tmp_path, env: dict):
     shipped one)."""
     first = cfg.with_name("first.toml")
     first.write_text(cfg.read_text().replace("max_link_latency_s = 0.014", "max_link_latency_s = 0.1")
-                     .replace("link_stop_latency_s = 0.020", "link_stop_latency_s = 0.2"))
+                     .replace("link_stop_latency_s = 0.050", "link_stop_latency_s = 0.2"))
     go = tmp_path / "go"
     code = ("import pathlib, sys, time\n"
             "import groundstation.backends.crazyflie, groundstation.runtime.fly\n"  # what fly imports, up front

@@ -17,7 +17,7 @@ def test_readme_counts_every_row():
         importlib.import_module(f"tests.faults.{path.stem}")
     readme = (HERE.parents[1] / "README.md").read_text()
     # pytest may have imported a row module under another name (rootdir-relative) before: one row per function
-    rows = {(inspect.getsourcefile(f.run), f.run.__name__): f for f in FAULTS}
+    rows = {(inspect.getsourcefile(inspect.unwrap(f.run)), f.run.__name__): f for f in FAULTS}
     ids = [f.id for f in rows.values()]
     assert len(ids) == len(set(ids)), "two rows share an id"
     assert re.findall(r"\*\*(\d+) rows\*\*", readme) == [str(len(rows))]

@@ -4,7 +4,7 @@ same flight against the Python modules. Needs ``CRAZYFLIE_FIRMWARE`` (see confte
 
 A flight the machine stopped (a stall or a silent link while a top-priority probe saw a CPU held off ~100 ms by
 the host: ``tests.peers.stopped_by_host``) voids its attempt, and the platform is flown again from fresh firmware
-processes, at most ``ATTEMPTS`` times; every voided attempt is printed. Any other ending fails at once."""
+processes, at most ``tests.peers.ATTEMPTS`` times; every voided attempt is printed. Any other ending fails at once."""
 
 from __future__ import annotations
 
@@ -17,11 +17,9 @@ import pytest
 
 from tests.firmware_sitl.conftest import ROOT, sitl_binary
 from tests.firmware_sitl.test_conformance import TOY
-from tests.peers import host_freezes, peer_process, stopped_by_host
+from tests.peers import attempted, host_freezes, peer_process, raise_if_stopped_by_host
 
 SHIPPED_PORT, MOCAP = 19850, "tcp/127.0.0.1:7448"
-ATTEMPTS = 3
-
 
 def flight_config(tmp_path, platform: str, port: int, mocap: str):
     """The shipped Crazyflie SITL flight config, flying ``platform``'s two-module V on ``port`` and ``mocap``."""
@@ -55,17 +53,13 @@ def groundstation(*args: str) -> subprocess.CompletedProcess:
                           stdin=subprocess.DEVNULL, timeout=180)
 
 
-class HostStopped(Exception):
-    """The machine stopped under a flight (see the module docstring)."""
-
-
 def fly_to_done(cfg) -> float:
     """``fly --json`` once; its position RMSE, m. Raises :class:`HostStopped` for a flight the machine stopped."""
     with host_freezes() as seen:
         flown = groundstation("fly", str(cfg), "--json")
     summary = json.loads(flown.stdout)
-    if flown.returncode != 0 and stopped_by_host(summary["phase"], summary["reason"], seen):
-        raise HostStopped(f"{summary['reason']} (a CPU held off {max(seen.lengths) * 1e3:.0f} ms by the host)")
+    if flown.returncode != 0:
+        raise_if_stopped_by_host(summary["phase"], summary["reason"], seen)
     assert flown.returncode == 0 and summary["phase"] == "done" and summary["reason"] == "", flown.stderr
     return summary["pos_rmse_m"]
 
@@ -85,22 +79,11 @@ def against_model(tmp_path, platform: str, port: int, mocap: str, cfg) -> float:
         return fly_to_done(cfg)
 
 
-def attempted(run, *args):
-    """``run(*args)``, again (at most ``ATTEMPTS`` times in all) while the machine stops a flight of it."""
-    for attempt in range(1, ATTEMPTS + 1):
-        try:
-            return run(*args)
-        except HostStopped as stop:
-            print(f"{args[1]}: {run.__name__}, attempt {attempt} of {ATTEMPTS} voided: {stop}")
-            if attempt == ATTEMPTS:
-                raise AssertionError(f"the machine stopped {ATTEMPTS} attempts in a row: {stop}") from stop
-
-
 @pytest.mark.parametrize("platform, port", [("cf2", 19640), ("bolt", 19650), ("cf21bl", 19660)])
 def test_figure8_against_real_firmware_modules(platform, port, tmp_path):
     mocap = f"tcp/127.0.0.1:{7624 + port % 19640 // 10}"
     cfg = flight_config(tmp_path, platform, port, mocap)
-    firmware = attempted(against_firmware, tmp_path, platform, port, mocap, cfg)
-    model = attempted(against_model, tmp_path, platform, port, mocap, cfg)
+    firmware = attempted(against_firmware, tmp_path, platform, port, mocap, cfg, label=platform)
+    model = attempted(against_model, tmp_path, platform, port, mocap, cfg, label=platform)
     print(f"{platform}: position RMSE real firmware {firmware} m, Python modules {model:.4f} m")
     assert max(firmware) <= 2.0 * model

@@ -69,7 +69,7 @@ def test_clocks_drifting_apart_stay_believable():
     ``max_rise_s``: every sample believed, and the offset follows (a stamp maps within a few ms of its arrival)."""
     clock = StampClock()
     seen = _fed(clock, 180.0, lambda t: 0.005 + 1e-4 * t)
-    assert max(abs(d) for d in seen) <= SKEW
+    assert max(abs(d) for d in seen) <= SKEW and not clock.capped(10.0 + 180.0)
     stamp = 100.0 + 179.99
     assert abs(clock.local(stamp) - (10.0 + 179.99 + 0.005 + 1e-4 * 179.99)) < 0.005
 
@@ -90,6 +90,9 @@ def test_a_delay_grown_more_slowly_than_drift_is_followed_only_max_rise_s():
             mapped_after.append(clock.local(stamp) - (sent + 0.005))  # how much fresher than it is it looks
         elif d > SKEW:
             late.append(k / 100.0)
+            assert clock.capped(arrival)  # the rejection says the offset is at its bound
+        else:
+            assert not clock.capped(arrival) or k / 100.0 > rise / 4e-4 - 1.0
     assert max(mapped_after) <= rise + 1e-9
     expected = (rise + SKEW + 0.004) / 4e-4  # 185 s (it may have arrived at the poll before: 4 ms)
     assert late and expected - 1.0 < late[0] < expected + 1.0

@@ -202,7 +202,7 @@ def sim_peer(request, tmp_path):
     # rows in tests/faults): on an idle 2-core machine a burst of 23 ms round trips once ended the link-loss
     # flight on "link degraded" before the peer was killed (2026-12-02), as _second_fly's rows saw.
     cfg.write_text(cfg.read_text().replace("max_link_latency_s = 0.014", "max_link_latency_s = 0.1")
-                   .replace("link_stop_latency_s = 0.020", "link_stop_latency_s = 0.2"))
+                   .replace("link_stop_latency_s = 0.050", "link_stop_latency_s = 0.2"))
     params = load_flight_config(cfg)[0].backend.firmware_params
     peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", protocol,
                         "--port", str(test_port), "--mocap", "tcp/127.0.0.1:7476", "--params", params)

@@ -1,0 +1,103 @@
+"""Fault-table rows: a module link that slows down, measured as the flight measures it (the Crazyflie app's echo,
+PX4's answer to MAVLink ``TIMESYNC``), injected for real by ``python -m sim.udp_relay`` between the ground station
+and ``groundstation sim-peer`` (its own process, as an operator starts it)."""
+
+from __future__ import annotations
+
+import contextlib
+import subprocess
+import sys
+
+import pytest
+
+from groundstation.errors import PreflightError
+from groundstation.runtime.fly import fly
+from tests.faults.table import link_or_load, rows
+from tests.faults.test_fault_table import _max_tilt_deg, _records
+from tests.peers import ROOT, host_freezes, peer_process, raise_if_stopped_by_host, world_priority
+from tests.runtime.test_fly import read_log, sitl_config
+
+PX4_PEER, PX4_RELAY, PX4_MOCAP = 19974, 19978, "tcp/127.0.0.1:7711"
+CF_PEER, CF_RELAY, CF_MOCAP = 19982, 19986, "tcp/127.0.0.1:7712"
+
+
+@contextlib.contextmanager
+def _slowed(tmp_path, kind: str, links: int, **faults):
+    """sim-peer for ``kind`` and a relay slowing the first ``links`` of its two links (the others direct); yields
+    the flight config."""
+    peer_port, relay_port, mocap = (PX4_PEER, PX4_RELAY, PX4_MOCAP) if kind == "mavlink" else (CF_PEER, CF_RELAY,
+                                                                                                 CF_MOCAP)
+    args = [f"--{k.replace('_', '-')}={v}" for k, v in faults.items()]
+    procs = [subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(relay_port), "--target",
+                               str(peer_port), "--links", str(links), *args], stdout=subprocess.DEVNULL,
+                              preexec_fn=world_priority)]
+    extra = (["--protocol", "mavlink", "--params", str(ROOT / "firmware_params/px4/module_params.toml")]
+             if kind == "mavlink" else ["--params", str(ROOT / "firmware_params/crazyflie.toml")])
+    procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(peer_port),
+                              "--mocap", mocap, *extra))
+    try:
+        cfg = sitl_config(tmp_path, kind, peer_port, mocap)
+        text = cfg.read_text()
+        for i in range(links):  # link i through the relay
+            text = text.replace(f"127.0.0.1:{peer_port + i}\"", f"127.0.0.1:{relay_port + i}\"")
+        cfg.write_text(text)
+        yield cfg
+    finally:
+        for p in procs:
+            p.terminate()
+            p.wait(10)
+
+
+def _last_height_m(log) -> float:
+    """The estimate's last height above where it took off, m."""
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+    z = [PoseInFrame.FromString(data).pose.position.z for _, data in _records(log, "/state/pose")]
+    return z[-1] - z[0]
+
+
+def _landed_on_a_slow_link(tmp_path, kind: str, links: int, delay_ms: float, max_tilt_deg: float) -> None:
+    """The first ``links`` of ``kind``'s links slowed ``delay_ms`` each way 6 s after the relay's first packet (in
+    tracking): the flight names the round trip and lands, upright, its touchdown on the poses (the last one on the
+    ground), not a stop in the air."""
+    with _slowed(tmp_path, kind, links, delay_ms=delay_ms, after=6.0) as cfg:
+        log = tmp_path / f"{kind}-slow.mcap"
+        with host_freezes() as seen:
+            res = fly(cfg, duration=5.0, log_path=log)
+    raise_if_stopped_by_host(res.phase, res.reason, seen)
+    assert res.phase == "done" and res.reason.startswith("link degraded: module") and "round trip" in res.reason, \
+        (res.phase, res.reason)
+    assert _max_tilt_deg(log) < max_tilt_deg and _last_height_m(log) < 0.05
+
+
+@link_or_load("PX4 links: 8 ms added each way in flight (round trip ~20 ms)",
+              "the round trip (TIMESYNC) named, a landing with the bandwidths cut to the delay: upright, "
+              "exit 1 (before: nothing measured it; landing at the full bandwidths tilted the V 42 deg)")
+def f_px4_link_8ms_in_flight(cli, tmp_path):
+    # Measured: 18-20 deg (a 1 s landing begun mid-figure-8 leans to stop it), 42 deg at the full bandwidths.
+    _landed_on_a_slow_link(tmp_path, "mavlink", 2, 8, max_tilt_deg=25.0)
+
+
+@link_or_load("PX4 links: 30 ms added each way from the start",
+              "preflight refuses (round trip, by TIMESYNC), never armed")
+def f_px4_link_30ms_from_the_start(cli, tmp_path):
+    with _slowed(tmp_path, "mavlink", 2, delay_ms=30) as cfg:
+        log = tmp_path / "px4-late.mcap"
+        with pytest.raises(PreflightError, match=r"module 0 \(udpout:127.0.0.1:19978\) link round trip \d+ ms > "
+                                                 r"14 ms"):
+            fly(cfg, log_path=log)
+    assert "/control" not in read_log(log)[0]
+
+
+@link_or_load("crazyflie: one module's link slowed 9 ms each way in flight (round trip ~20 ms)",
+              "the round trip named, a landing on it to the ground, upright, exit 1 (before: the landing stopped its "
+              "motors 20 ms later at the 20 ms stop bound, a drop from 0.9 m)")
+def f_crazyflie_one_link_9ms_in_flight(cli, tmp_path):
+    # The landing, begun mid-figure-8 and 1 s long, leans 11-12 deg to stop the figure-8's speed (one slow link of
+    # two does not cut the bandwidths: its mean round trip is within the bound).
+    _landed_on_a_slow_link(tmp_path, "crazyflie", 1, 9, max_tilt_deg=20.0)
+
+
+@pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
+def test_fault(row, cli, tmp_path):
+    row.run(cli, tmp_path)
