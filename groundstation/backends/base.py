@@ -52,7 +52,8 @@ class Telemetry:
     """Per-module round trip of a command, s (median over a recent window; NaN until measured; empty when the
     backend does not measure it)."""
     link_loss: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
-    """Per-module fraction of recent commands the module did not accept (lost or reordered; NaN until measured;
+    """Per-module fraction of recent commands the module did not accept (lost or reordered; on MAVLink, of probes
+    unanswered, taken each way; NaN until measured;
     empty when not measured)."""
     module_faults: tuple[str, ...] = ()
     """Per module, why it no longer flies ("" while it does): its firmware stopped flying it since arming

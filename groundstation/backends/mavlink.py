@@ -16,7 +16,10 @@ flight stops. On the vehicle, offboard loss after ``COM_OF_LOSS_T`` stops the mo
 The link's round trip is measured as PX4's own tools measure it: a ``TIMESYNC`` request (``tc1`` 0, our time in
 ``ts1``) every ``timesync_period``, which PX4's mavlink module answers at once with its time in ``tc1`` and the
 ``ts1`` it got; preflight refuses a module that does not answer or answers too slowly (``max_latency``), and in
-flight :attr:`~groundstation.backends.base.Telemetry.link_latency_s` carries it to the flight's link bounds.
+flight :attr:`~groundstation.backends.base.Telemetry.link_latency_s` carries it to the flight's link bounds. The
+probes left unanswered are the link's loss (:meth:`MavlinkBackend.link_loss`). An answer counts only if it keeps
+the module's own clock (its ``ATTITUDE`` stamps), and telemetry that comes older on that clock than the answers
+is a delay they do not show (:meth:`MavlinkBackend.held_back`), counted into the round trip.
 
 One flight owns a module set on this host (a lock per link, :mod:`groundstation.backends.link_lock`); PX4 <= 1.13
 has no owner of its own, so a ground station on another host is kept off only by the network. Preflight refuses
@@ -31,6 +34,7 @@ backend closes.
 
 from __future__ import annotations
 
+import math
 import statistics
 import time
 from collections import deque
@@ -77,6 +81,10 @@ class MavlinkSettings:
     command_period: float = 0.004
     """The flight's control period: preflight reads the links at it, so the round trips it measures (each a lower
     bound, short by up to one read's wait) are the flight's, s."""
+    stamp_slack: float = 0.002
+    """How much older than its TIMESYNC answers a module's ``ATTITUDE`` may be on its own clock (both on their
+    fastest path), s: PX4 stamps the attitude when it is estimated, before it goes out; the freshest of a stretch
+    went within a millisecond or two."""
 
 
 HEARTBEAT_S = 1.0
@@ -87,11 +95,16 @@ RETRY_S = 0.1
 """Interval between repeats of an unacknowledged command, s."""
 STOP_CONFIRM_S = 0.5
 """How long closing the backend repeats an unconfirmed stop or disarm, s."""
-SILENT_PROBES = 3
-"""Unanswered probes that make the oldest one's age a round trip: one left over from before a pause in probing
-(arming sends none) is not a silence."""
-MAX_PROBES = 256
-"""Unanswered probes kept per module (the oldest always: its age is how long the answers have stopped)."""
+LOSS_WINDOW_S = 0.5
+"""The loss is taken over the probes sent in this stretch (ending ``link_timeout`` ago: younger ones may still be
+answered), s."""
+MIN_LOSS_PROBES = 10
+"""Fewer probes in the window measure no loss."""
+CLOCK_WINDOW_S = 0.2
+"""The module's clock is compared with ours over the newest stretch this long, s."""
+FOREIGN_CLOCK_S = 0.05
+"""An answer whose ``tc1`` is this far off the module's own ``ATTITUDE`` stamps (on the fastest path) was not
+made by it, s."""
 SETPOINT_LEAD_S = 1.0
 """Zero setpoints streamed before the switch to offboard, s: PX4 refuses offboard without a setpoint stream, and
 its documentation (v1.14 on) asks for more than 1 s of it before arming in offboard."""
@@ -125,6 +138,13 @@ class _Module:
         self.probes: dict[int, float] = {}
         """``ts1`` of each TIMESYNC probe sent since the newest answered one -> when it was sent, s (oldest first:
         an answer drops the probes before its own, lost or overtaken)."""
+        self.sent: deque[tuple[float, bool]] = deque()
+        """(when, answered) of each probe of the loss window, oldest first."""
+        self.answer_clock: deque[tuple[float, float]] = deque()
+        self.attitude_clock: deque[tuple[float, float]] = deque()
+        """(when found, the module's clock in the message less that) of each TIMESYNC answer and ATTITUDE of
+        :data:`CLOCK_WINDOW_S`, s: on the fastest path the largest of each is the clocks' offset less the
+        way back, the same for both when both come from the module as they are sent."""
         self.rtts: deque[float] = deque()
         """The newest round trips measured, s."""
 
@@ -179,6 +199,7 @@ class MavlinkBackend(BackendBase):
         for m in self._modules:
             m.rtts.clear()  # measured afresh: the link as it is now
             m.probes.clear()
+            m.sent.clear()
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
         while self._clock() < deadline and not all(m.battery_heard >= since and r and len(m.rtts) >= s.latency_samples
                                                    for m, r in zip(self._modules, requested, strict=True)):
@@ -270,23 +291,43 @@ class MavlinkBackend(BackendBase):
                          gyro_age_s=float(now - gyro_heard),
                          module_gyro_ages_s=now - np.array([m.gyro_heard for m in self._modules]),
                          battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates,
-                         link_latency_s=self.link_latency())
+                         link_latency_s=self.link_latency(), link_loss=self.link_loss())
 
     def link_latency(self) -> np.ndarray:
         """Per module, the median of its newest round trips (``latency_samples``), s; NaN until one is measured.
         Each is a lower bound: from the probe's send to the last read of the link that had not found its answer (a
-        busy ground station's late reads are not the link's). Answers that stop (or take longer than the link's
-        timeout) while the rest of the link flows cannot hold an old median: once the oldest probe sent since the
-        newest answer is ``link_timeout`` old at the last read and :data:`SILENT_PROBES` have gone since, its age is
-        the round trip (a lower bound too; a few lost probes in a row do not reach it)."""
+        busy ground station's late reads are not the link's). Plus twice what the module's ``ATTITUDE`` is older
+        on its own clock than its answers beyond ``stamp_slack`` (:meth:`held_back`): a relay answering the probes
+        itself and holding the rest back 10 ms each way read 0 ms, and the V flipped (hostile campaign 29)."""
+        held = self.held_back()
+        return np.array([(statistics.median(m.rtts) if m.rtts else np.nan) + (2.0 * h if h > 0 else 0.0)
+                         for m, h in zip(self._modules, held, strict=True)])
+
+    def held_back(self) -> np.ndarray:
+        """Per module, how much older its ``ATTITUDE`` comes than its TIMESYNC answers, on its own clock, s, when
+        that is more than ``stamp_slack`` (else 0; NaN until both came): what the link holds back that the answers
+        do not show (the way there taken as long again)."""
         out = []
         for m in self._modules:
-            latency = statistics.median(m.rtts) if m.rtts else np.nan
-            if len(m.probes) >= SILENT_PROBES:
-                waiting = self._polled - next(iter(m.probes.values()))
-                if waiting >= self.settings.link_timeout:
-                    latency = waiting if np.isnan(latency) else max(latency, waiting)
-            out.append(latency)
+            if not (m.answer_clock and m.attitude_clock):
+                out.append(np.nan)
+                continue
+            held = max(q for _, q in m.answer_clock) - max(q for _, q in m.attitude_clock)
+            out.append(held if held > self.settings.stamp_slack else 0.0)
+        return np.array(out)
+
+    def link_loss(self) -> np.ndarray:
+        """Per module, the fraction of packets lost each way over :data:`LOSS_WINDOW_S`, from the probes left
+        unanswered ``link_timeout`` after they went (an answer slower than that counts as lost too), both ways
+        taken alike: 1 - sqrt(answered). NaN under :data:`MIN_LOSS_PROBES`. Answers that stop while the rest of
+        the link flows (or a round trip beyond the timeout) read as 100 %: a degraded link, never an old median
+        held (nor a silence taken for a round trip: 30 % loss made runs of ten probes in a row go unanswered, read
+        as 100 ms round trips that stopped the motors 0.95 m up; hostile campaign 29)."""
+        out = []
+        for m in self._modules:
+            end = self._polled - self.settings.link_timeout
+            judged = [answered for t, answered in m.sent if end - LOSS_WINDOW_S <= t < end]
+            out.append(1.0 - math.sqrt(sum(judged) / len(judged)) if len(judged) >= MIN_LOSS_PROBES else np.nan)
         return np.array(out)
 
     def disarm(self) -> None:
@@ -348,9 +389,12 @@ class MavlinkBackend(BackendBase):
         for m in self._modules:
             if m.system_id is None:
                 continue
-            if len(m.probes) >= MAX_PROBES:  # answers stopped: keep the oldest, drop the next
-                del m.probes[list(m.probes)[1]]
             m.probes[ts1] = now
+            m.sent.append((now, False))
+            while m.sent[0][0] < now - self.settings.link_timeout - LOSS_WINDOW_S:
+                m.sent.popleft()
+            while len(m.probes) > len(m.sent):  # answers stopped: what left the window is no longer awaited
+                del m.probes[next(iter(m.probes))]
             m.conn.mav.timesync_send(0, ts1)
 
     def _send_controls(self, u: np.ndarray) -> None:
@@ -443,6 +487,7 @@ class MavlinkBackend(BackendBase):
                     self._gyro[i] = mw.FRD_TO_FLU @ np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
                     m.gyro_heard = now
                     m.up = mw.up_in_module(msg.roll, msg.pitch)
+                    _clock_sample(m.attitude_clock, now, msg.time_boot_ms * 1e-3 - now)
                 elif kind == "SERVO_OUTPUT_RAW":
                     # Outputs sent before the module saw the stop still show thrust; the disarm's ACK comes
                     # after them on the same link, so only later outputs say what is applied now.
@@ -459,11 +504,26 @@ class MavlinkBackend(BackendBase):
                     # too, and would measure only the way to itself) do not measure anything.
                     if msg.tc1 <= 0 or msg.get_srcComponent() != m.component_id or msg.ts1 not in m.probes:
                         continue
+                    clock = msg.tc1 * 1e-9 - now
+                    if m.attitude_clock and abs(clock - max(q for _, q in m.attitude_clock)) > FOREIGN_CLOCK_S:
+                        continue  # not the module's clock: something else on the link answers for it (lost)
+                    _clock_sample(m.answer_clock, now, clock)
                     sent = m.probes[msg.ts1]
                     m.probes = {k: t for k, t in m.probes.items() if t > sent}
                     m.rtts.append(max(polled - sent, 0.0))
+                    for j in range(len(m.sent) - 1, -1, -1):  # its entry in the loss window, found from the newest
+                        if m.sent[j][0] == sent:
+                            m.sent[j] = (sent, True)
+                            break
                     if len(m.rtts) > s.latency_samples:
                         m.rtts.popleft()
                 else:
                     continue
                 m.heard = now
+
+
+def _clock_sample(samples: deque[tuple[float, float]], now: float, clock: float) -> None:
+    """Add one (``now``, ``clock``) to ``samples``, forgetting those older than :data:`CLOCK_WINDOW_S`."""
+    samples.append((now, clock))
+    while samples[0][0] < now - CLOCK_WINDOW_S:
+        samples.popleft()

@@ -26,6 +26,7 @@ path ends in one of these.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -121,6 +122,34 @@ class PoseSource(Protocol):
 
     def integrity(self) -> MocapIntegrity: ...
 
+    def keep_up(self) -> None:
+        """Take what has arrived, for the next :meth:`measurements`, and keep the stream's own exchanges going (a
+        keyed stream's challenges) while the flight waits on something else; safe beside :meth:`measurements` on
+        another thread."""
+        ...
+
+
+@contextlib.contextmanager
+def poses_kept_up(pose: PoseSource, period: float):
+    """``pose`` kept up (:meth:`PoseSource.keep_up`) every ``period`` s on a thread of its own while the block runs
+    (the modules' preflight and arming, which block for a second or more with hardware backends): a keyed stream's
+    samples must echo a challenge sent at most ``fresh_s`` before they are found, and with no poll meanwhile none
+    did. Every keyed flight with modules took off on a pose 1.04 s old and began a blind landing from the ground in
+    its first period (hostile campaign 29)."""
+    stop = threading.Event()
+
+    def keep_up() -> None:
+        while not stop.wait(period):
+            pose.keep_up()
+
+    thread = threading.Thread(target=keep_up, name="poses-kept-up", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
 
 @dataclass(frozen=True)
 class MocapIntegrity:
@@ -164,6 +193,9 @@ class PhysicsPoseSource:
     def integrity(self) -> MocapIntegrity:
         return MocapIntegrity()
 
+    def keep_up(self) -> None:
+        """Nothing to keep up: the samples are made when asked for."""
+
 
 @dataclass(frozen=True)
 class FailsafePolicy:
@@ -188,7 +220,8 @@ class FailsafePolicy:
     delay_limited`): measured in SITL, landings at round trips of 19-47 ms touched down tilting at most 1-22 deg;
     the 20 ms this was before dropped the V from 0.9 m for one Crazyflie link slowed 8-9 ms each way."""
     max_link_loss: float = 0.1
-    """A module that does not accept this fraction of commands (lost or reordered) degrades the link."""
+    """A module whose link loses this fraction degrades it: commands not accepted (lost or reordered) on Crazyflie,
+    TIMESYNC probes unanswered on MAVLink (taken each way)."""
     on_link_degraded: Literal["land", "stop"] = "land"
     max_stall_s: float = 0.1
     """A gap between control periods longer than this stops the motors: real modules have stopped theirs by then
@@ -246,10 +279,11 @@ class Requests:
         """``what`` the operator asked for, with its source: "operator stop (SIGTERM)"."""
         return f"{what} ({self.source})" if self.source else what
 
-    def abort_reason(self, when: str) -> str:
-        """The reason of a flight the operator ended ``when`` ("in preflight") before anything was armed."""
+    def abort_reason(self, when: str, armed: bool = False) -> str:
+        """The reason of a flight the operator ended ``when`` ("in preflight") before anything spun (``armed``:
+        the modules armed meanwhile, and were disarmed)."""
         source = f" ({self.source})" if self.source else ""
-        return f"stopped by the operator {when}{source}: never armed"
+        return f"stopped by the operator {when}{source}: " + ("disarmed before take-off" if armed else "never armed")
 
 
 @dataclass(frozen=True)
@@ -921,7 +955,7 @@ class Flight:
             return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > {bound * 1e3:g} ms", severe
         if loss.size and np.nanmax(loss, initial=0.0) > p.max_link_loss:
             i = int(np.nanargmax(loss))
-            return f"link degraded: module {i} lost {loss[i]:.0%} of commands > {p.max_link_loss:.0%}", False
+            return f"link degraded: module {i} loses {loss[i]:.0%} of its packets > {p.max_link_loss:.0%}", False
         return "", False
 
     def _log_motors_off(self, t: float) -> None:
@@ -1072,11 +1106,19 @@ class Flight:
                 self._set_phase(0.0, Phase.ABORTED, self.reason)
                 return self._stats
             try:
-                self.backend.arm()
+                with poses_kept_up(self.pose, 1.0 / rate_hz):
+                    self.backend.arm()
             except ArmingError as exc:
                 self.backend.disarm()
                 self.reason = str(exc)
                 self._set_phase(0.0, Phase.ABORTED, f"arming failed: {exc}")
+                return self._stats
+            if self.requests.stop.is_set() or self.requests.land.is_set():
+                # Asked while arming (over a second with PX4 modules): nothing has spun, so a disarm, not the
+                # emergency stop the first period would give (on PX4 a termination that latches until a reboot).
+                self.backend.disarm()
+                self.reason = self.requests.abort_reason("while arming", armed=True)
+                self._set_phase(0.0, Phase.ABORTED, self.reason)
                 return self._stats
             self._estimate(self.backend.telemetry())
             with collector_paused():

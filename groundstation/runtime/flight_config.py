@@ -313,7 +313,8 @@ class FailsafeSection:
     link_stop_latency_s: float = Field(FailsafePolicy.link_stop_latency_s, gt=0, le=MAX_REACTION_S)
     """Beyond this round trip the motors stop whatever ``on_link_degraded`` says (too slow to land), s."""
     max_link_loss: float = Field(FailsafePolicy.max_link_loss, ge=MIN_LINK_LOSS, le=1)
-    """crazyflie: a module that does not accept this fraction of commands (lost, reordered) is degraded (at least
+    """A module whose link loses this fraction (commands not accepted on Crazyflie, TIMESYNC probes unanswered on
+    MAVLink) is degraded (at least
     :data:`MIN_LINK_LOSS`)."""
     on_link_degraded: Literal["land", "stop"] = FailsafePolicy.on_link_degraded
     max_stall_s: float = Field(FailsafePolicy.max_stall_s, gt=0, le=MAX_REACTION_S)

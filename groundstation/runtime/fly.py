@@ -75,6 +75,7 @@ from groundstation.runtime.flight import (
     Requests,
     degradation,
     operator_landing,
+    poses_kept_up,
 )
 from groundstation.runtime.flight_config import (
     FlightConfig,
@@ -91,6 +92,8 @@ from groundstation.runtime.signals import LANDING_SIGNALS, NEVER_A_STOP, TOOL_SI
 from groundstation.runtime.terminal import forget_lost_terminal
 
 PREFLIGHT_TIMEOUT_S = 3.0
+PREFLIGHT_POLL_S = 0.005
+"""Preflight reads the mocap stream this often, s (a keyed stream's challenges go out at its reads)."""
 GIL_SWITCH_S = 1e-4
 STILL_SPEED = 0.2
 """Preflight: the estimated speed must be below this (mocap noise alone gives a few cm/s), m/s."""
@@ -180,6 +183,9 @@ class _LoggedPose:
 
     def now(self) -> float:
         return self._sub.now()
+
+    def keep_up(self) -> None:
+        self._sub.poll()
 
     def measurements(self) -> list[PoseMeasurement]:
         for t_mono, payload, stamp in self._sub.drain_raw():
@@ -544,13 +550,18 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
             first_seen = time.monotonic()
             deadline = max(deadline, first_seen + m.preflight_watch_s + 0.5)
         world.settle(time.monotonic() - watch_start)
-        time.sleep(0.005)
+        time.sleep(PREFLIGHT_POLL_S)
         _stop_if_asked(requests)
         est.predict(pose.now(), None)
         for sample in pose.measurements():
             est.correct(sample)
+    with poses_kept_up(pose, PREFLIGHT_POLL_S):  # the modules' checks take a second or more on hardware
+        report = world.backend.preflight()
+    est.predict(pose.now(), None)  # and what arrived meanwhile is the newest the estimate knows
+    for sample in pose.measurements():
+        est.correct(sample)
     s = est.state()
-    issues = list(world.backend.preflight().issues) + firmware_issues + log_issues
+    issues = list(report.issues) + firmware_issues + log_issues
     _stop_if_asked(requests)
     if sub.fault():
         issues.append(f"mocap: {sub.fault()}")

@@ -1,5 +1,7 @@
 """The MAVLink backend through pymavlink's UDP connections, against simulated PX4 modules speaking MAVLink."""
 
+import contextlib
+import itertools
 import threading
 import time
 
@@ -256,17 +258,24 @@ def test_module_gravity_and_two_links_to_one_vehicle():
         stop_peer(peer, th)
 
 
-def _vehicle(port: int, answer_after: float | None, silent: threading.Event | None = None, answerer: int = 1):
+@contextlib.contextmanager
+def _vehicle(port: int, answer_after: float | None, silent: threading.Event | None = None, answerer: int = 1,
+             every: int = 1, attitude_lag: float = 0.0, answer_clock: float = 0.0):
     """A PX4-like vehicle on ``port``: heartbeats, battery and attitude; with ``answer_after`` it answers each
     TIMESYNC request that long after it came (and again, a repeat), and sends a forged answer at once (a ``ts1``
     never sent) and requests of its own (``tc1`` 0), none of which may count as a round trip; once ``silent`` is
     set it answers no more (its other streams go on); ``answerer``: the component id its answers come from (1, the
-    autopilot; 191, a companion computer on the vehicle). Returns (stop, thread, connection)."""
+    autopilot; 191, a companion computer on the vehicle); ``every``: it answers one request in that many (a lossy
+    link); ``attitude_lag``: its ATTITUDE that much older on its clock than its answers (what a relay answering
+    for it and holding the rest back makes of the stream); ``answer_clock``: its answers' clock that far off its
+    own (something else answering). Runs while the block does."""
     vehicle = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     stop = threading.Event()
     due: list[tuple[float, int]] = []
+    requests = itertools.count()
 
     def answer(tc1: int, ts1: int) -> None:
+        tc1 += int(answer_clock * 1e9)
         vehicle.mav.srcComponent = answerer
         vehicle.mav.timesync_send(tc1, ts1)
         vehicle.mav.srcComponent = 1
@@ -286,81 +295,92 @@ def _vehicle(port: int, answer_after: float | None, silent: threading.Event | No
                 vehicle.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_QUADROTOR, mavutil.mavlink.MAV_AUTOPILOT_PX4,
                                            0, 0, 3)
                 vehicle.mav.sys_status_send(0, 0, 0, 0, 4000, -1, -1, 0, 0, 0, 0, 0, 0)
-                vehicle.mav.attitude_send(0, 0, 0, 0, 0, 0, 0)
+                # on the clock its answers carry
+                vehicle.mav.attitude_send(int((now - attitude_lag) * 1e3), 0, 0, 0, 0, 0, 0)
             elif kind == "TIMESYNC" and msg.tc1 == 0 and answer_after is not None and not (silent and silent.is_set()):
+                if next(requests) % every:
+                    continue
                 due.append((now + answer_after, msg.ts1))
                 answer(int(now * 1e9), msg.ts1 + 1)  # names no probe
                 vehicle.mav.timesync_send(0, int(now * 1e9))  # the vehicle's own request
 
     th = threading.Thread(target=serve, daemon=True)
     th.start()
-    return stop, th, vehicle
+    try:
+        yield
+    finally:
+        stop.set()
+        th.join(2)
+        vehicle.close()
 
 
 def test_the_round_trip_is_measured_by_timesync_and_bounded_in_preflight():
     """The answer to each probe measures the link; forged, repeated answers and the vehicle's own requests do not.
     Each round trip is a lower bound (to the last read that had not found the answer): a vehicle answering 30 ms
     late reads at least 30 ms less one read's wait (10 ms in preflight)."""
-    stop, th, vehicle = _vehicle(14654, answer_after=0.03)
-    try:
-        with MavlinkBackend(["udpout:127.0.0.1:14654"], U_MAX, ASM.module_rotations[:1]) as be:
-            issues = be.preflight().issues
-            latency = be.link_latency()[0]
-            assert 0.019 <= latency < 0.2, latency  # upper: a loaded machine wakes the vehicle late, never early
-            assert issues == (f"module 0 (udpout:127.0.0.1:14654) link round trip {latency * 1e3:.0f} ms > 14 ms",)
-            assert be.telemetry().link_latency_s[0] >= 0.019  # what the flight is given (probes still answered)
-    finally:
-        stop.set()
-        th.join(2)
-        vehicle.close()
+    with (_vehicle(14654, answer_after=0.03),
+          MavlinkBackend(["udpout:127.0.0.1:14654"], U_MAX, ASM.module_rotations[:1]) as be):
+        issues = be.preflight().issues
+        latency = be.link_latency()[0]
+        assert 0.019 <= latency < 0.2, latency  # upper: a loaded machine wakes the vehicle late, never early
+        assert issues == (f"module 0 (udpout:127.0.0.1:14654) link round trip {latency * 1e3:.0f} ms > 14 ms",)
+        assert be.telemetry().link_latency_s[0] >= 0.019  # what the flight is given (probes still answered)
 
 
-def test_a_module_that_does_not_answer_timesync_is_refused():
-    stop, th, vehicle = _vehicle(14656, answer_after=None)
-    try:
-        with MavlinkBackend(["udpout:127.0.0.1:14656"], U_MAX, ASM.module_rotations[:1],
-                            MavlinkSettings(preflight_timeout=0.5)) as be:
-            assert be.preflight().issues == ("module 0 (udpout:127.0.0.1:14656) does not answer TIMESYNC: its link's "
-                                             "round trip cannot be measured",)
-            assert be.link_latency()[0] >= 0.2  # no answer yet: at least as long as the probes have waited
-    finally:
-        stop.set()
-        th.join(2)
-        vehicle.close()
-
-
-def test_answers_that_stop_do_not_hold_the_last_round_trip():
+def test_answers_that_stop_are_a_lost_link_not_the_last_round_trip():
     """A vehicle whose TIMESYNC answers stop while its other streams go on (PX4 drops what its full transmit buffer
-    cannot take): the round trip read is the silence, at least the link timeout, not the last median (0 ms)."""
+    cannot take): the link loses everything (a degraded link: the flight lands), not a link as fast as its last
+    answers; nor is the silence a round trip (random loss has silences too, and a round trip beyond the stop bound
+    stops the motors in the air)."""
     silent = threading.Event()
-    stop, th, vehicle = _vehicle(14658, answer_after=0.0, silent=silent)
-    try:
-        with MavlinkBackend(["udpout:127.0.0.1:14658"], U_MAX, ASM.module_rotations[:1],
-                            MavlinkSettings(link_timeout=0.1, max_latency=0.5)) as be:
-            assert be.preflight().ok and be.link_latency()[0] < 0.1
-            silent.set()
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 0.5:
-                be.send(np.zeros(4))
-                be.telemetry()
-                time.sleep(0.004)
-            assert be.telemetry().link_latency_s[0] >= 0.1
-    finally:
-        stop.set()
-        th.join(2)
-        vehicle.close()
+    with (_vehicle(14658, answer_after=0.0, silent=silent),
+          MavlinkBackend(["udpout:127.0.0.1:14658"], U_MAX, ASM.module_rotations[:1],
+                         MavlinkSettings(link_timeout=0.1, max_latency=0.5)) as be):
+        assert be.preflight().ok and be.link_latency()[0] < 0.1
+        silent.set()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 0.8:  # the loss window (0.5 s, ending a link timeout ago) all silent
+            be.send(np.zeros(4))
+            be.telemetry()
+            time.sleep(0.004)
+        assert be.telemetry().link_loss[0] == 1.0 and be.link_latency()[0] < 0.1
 
 
-def test_answers_from_another_component_do_not_measure_the_link():
-    """TIMESYNC is broadcast: a companion computer on the vehicle (component 191) answering measures only the way
-    to itself, not to the autopilot that flies."""
-    stop, th, vehicle = _vehicle(14660, answer_after=0.0, answerer=191)
-    try:
-        with MavlinkBackend(["udpout:127.0.0.1:14660"], U_MAX, ASM.module_rotations[:1],
-                            MavlinkSettings(preflight_timeout=0.5)) as be:
-            assert be.preflight().issues == ("module 0 (udpout:127.0.0.1:14660) does not answer TIMESYNC: its link's "
-                                             "round trip cannot be measured",)
-    finally:
-        stop.set()
-        th.join(2)
-        vehicle.close()
+def test_the_loss_each_way_is_measured_from_the_probes_left_unanswered():
+    """A vehicle answering one probe in two: half the round trips lost, 29 % each way (both ways alike)."""
+    with (_vehicle(14662, answer_after=0.0, every=2),
+          MavlinkBackend(["udpout:127.0.0.1:14662"], U_MAX, ASM.module_rotations[:1],
+                         MavlinkSettings(link_timeout=0.1, max_latency=0.5)) as be):
+        be.preflight()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 1.0:
+            be.send(np.zeros(4))
+            be.telemetry()
+            time.sleep(0.004)
+        assert be.link_loss()[0] == pytest.approx(1.0 - 0.5 ** 0.5, abs=0.05)
+
+
+def test_telemetry_held_back_behind_prompt_answers_counts_in_the_round_trip():
+    """A relay that answers the probes itself at once and holds the rest back: the answers read 0 ms, but the
+    module's own ATTITUDE comes 12 ms older on its clock than they do, and the round trip read counts that way and
+    the way there (the V flipped on a relay doing so with 10 ms each way; hostile campaign 29)."""
+    with (_vehicle(14664, answer_after=0.0, attitude_lag=0.012),
+          MavlinkBackend(["udpout:127.0.0.1:14664"], U_MAX, ASM.module_rotations[:1]) as be):
+        issues = be.preflight().issues
+        assert 0.010 <= be.held_back()[0] < 0.1 and be.link_latency()[0] >= 0.02, (be.held_back(), issues)
+        assert len(issues) == 1 and "link round trip" in issues[0], issues
+
+
+@pytest.mark.parametrize("port, answers", [
+    (14656, {"answer_after": None}),  # none at all
+    (14660, {"answer_after": 0.0, "answerer": 191}),  # a companion computer's: only the way to itself
+    (14666, {"answer_after": 0.0, "answer_clock": 1.0}),  # on a clock a second off the module's own stamps
+], ids=["silent", "another-component", "another-clock"])
+def test_a_module_whose_own_answers_do_not_come_is_refused(port, answers):
+    """TIMESYNC is broadcast, and anything on the link may answer: only the module's autopilot, on the module's own
+    clock, measures the link that flies."""
+    with _vehicle(port, **answers), MavlinkBackend([f"udpout:127.0.0.1:{port}"], U_MAX, ASM.module_rotations[:1],
+                        MavlinkSettings(preflight_timeout=0.5)) as be:
+        assert be.preflight().issues == (f"module 0 (udpout:127.0.0.1:{port}) does not answer TIMESYNC: its "
+                                         f"link's round trip cannot be measured",)
+        assert np.isnan(be.link_latency()[0]) and be.link_loss()[0] == 1.0

@@ -1,6 +1,6 @@
-"""Fault-table rows: a module link that slows down, measured as the flight measures it (the Crazyflie app's echo,
-PX4's answer to MAVLink ``TIMESYNC``), injected for real by ``python -m sim.udp_relay`` between the ground station
-and ``groundstation sim-peer`` (its own process, as an operator starts it)."""
+"""Fault-table rows: a module link that slows down or loses packets, measured as the flight measures it (the
+Crazyflie app's echo, PX4's answer to MAVLink ``TIMESYNC``), injected for real by ``python -m sim.udp_relay``
+between the ground station and ``groundstation sim-peer`` (its own process, as an operator starts it)."""
 
 from __future__ import annotations
 
@@ -56,16 +56,17 @@ def _last_height_m(log) -> float:
     return z[-1] - z[0]
 
 
-def _landed_on_a_slow_link(tmp_path, kind: str, links: int, delay_ms: float, max_tilt_deg: float) -> None:
-    """The first ``links`` of ``kind``'s links slowed ``delay_ms`` each way 6 s after the relay's first packet (in
-    tracking): the flight names the round trip and lands, upright, its touchdown on the poses (the last one on the
-    ground), not a stop in the air."""
-    with _slowed(tmp_path, kind, links, delay_ms=delay_ms, after=6.0) as cfg:
+def _landed_on_a_bad_link(tmp_path, kind: str, links: int, max_tilt_deg: float, named: str = "round trip",
+                          **faults) -> None:
+    """The first ``links`` of ``kind``'s links given the relay's ``faults`` 6 s after its first packet (in tracking):
+    the flight names the link (``named``: its round trip, or the share it loses) and lands, upright, its touchdown
+    on the poses (the last one on the ground), not a stop in the air."""
+    with _slowed(tmp_path, kind, links, after=6.0, **faults) as cfg:
         log = tmp_path / f"{kind}-slow.mcap"
         with host_freezes() as seen:
             res = fly(cfg, duration=5.0, log_path=log)
     raise_if_stopped_by_host(res.phase, res.reason, seen)
-    assert res.phase == "done" and res.reason.startswith("link degraded: module") and "round trip" in res.reason, \
+    assert res.phase == "done" and res.reason.startswith("link degraded: module") and named in res.reason, \
         (res.phase, res.reason)
     assert _max_tilt_deg(log) < max_tilt_deg and _last_height_m(log) < 0.05
 
@@ -75,7 +76,7 @@ def _landed_on_a_slow_link(tmp_path, kind: str, links: int, delay_ms: float, max
               "exit 1 (before: nothing measured it; landing at the full bandwidths tilted the V 42 deg)")
 def f_px4_link_8ms_in_flight(cli, tmp_path):
     # Measured: 18-20 deg (a 1 s landing begun mid-figure-8 leans to stop it), 42 deg at the full bandwidths.
-    _landed_on_a_slow_link(tmp_path, "mavlink", 2, 8, max_tilt_deg=25.0)
+    _landed_on_a_bad_link(tmp_path, "mavlink", 2, max_tilt_deg=25.0, delay_ms=8)
 
 
 @link_or_load("PX4 links: 30 ms added each way from the start",
@@ -95,7 +96,14 @@ def f_px4_link_30ms_from_the_start(cli, tmp_path):
 def f_crazyflie_one_link_9ms_in_flight(cli, tmp_path):
     # The landing, begun mid-figure-8 and 1 s long, leans 11-12 deg to stop the figure-8's speed (one slow link of
     # two does not cut the bandwidths: its mean round trip is within the bound).
-    _landed_on_a_slow_link(tmp_path, "crazyflie", 1, 9, max_tilt_deg=20.0)
+    _landed_on_a_bad_link(tmp_path, "crazyflie", 1, max_tilt_deg=20.0, delay_ms=9)
+
+
+@link_or_load("PX4 links: 30 % of packets lost each way in flight, no delay",
+              "the loss measured (TIMESYNC probes unanswered) named, a landing to the ground, upright, exit 1 (before: "
+              "runs of ten unanswered probes read as 100 ms round trips and stopped the motors 0.95 m up)")
+def f_px4_link_losing_30_percent_in_flight(cli, tmp_path):
+    _landed_on_a_bad_link(tmp_path, "mavlink", 2, max_tilt_deg=20.0, named="loses", loss=0.3, seed=2)
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

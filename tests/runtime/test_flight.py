@@ -244,3 +244,32 @@ def test_a_landing_begun_in_motion_goes_on_from_it(kind, at):
     tilt = [_tilt_deg(rot) for rot in r.rotation]
     assert max(target_step) < 0.5, max(target_step)  # per 4 ms period, over the first 0.3 s of the landing
     assert max(tilt[k:]) < max(tilt[:k]) + 1.0, (max(tilt[k:]), max(tilt[:k]))
+
+
+def test_a_request_while_arming_disarms_before_take_off():
+    """Ctrl-C during an arming that takes a second (PX4 modules): the modules armed meanwhile are disarmed, never
+    emergency-stopped (on PX4 a termination that latches until a reboot), and nothing spins (hostile campaign 29:
+    two SIGINTs while arming ended in the emergency stop at t = 0)."""
+    from groundstation.runtime.flight import Requests
+
+    asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+    requests = Requests(source="SIGINT")
+
+    class SlowToArm(PyBulletBackend):
+        stops = 0
+
+        def arm(self):
+            super().arm()
+            requests.land.set()  # the operator's signal, while the modules confirm
+
+        def emergency_stop(self):
+            self.stops += 1
+            super().emergency_stop()
+
+    with SlowToArm(asm) as be:
+        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 2.0))
+        flight = Flight(asm, plan, ready(be), PhysicsPoseSource(be), requests=requests)
+        flight.run(SimClock(be), 250.0)
+        assert flight.phase == "aborted" and flight.reason == ("stopped by the operator while arming (SIGINT): "
+                                                               "disarmed before take-off")
+        assert be.stops == 0 and not be.armed and be.telemetry().motors.max() == 0.0
