@@ -34,6 +34,9 @@ from groundstation.runtime.flight import MAX_BLIND_DESCENT_MPS, MAX_HEIGHT_SIGMA
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 MAX_DURATION_S = 3600.0
 """Longest take-off, tracking, landing or trajectory period, s: no battery of these modules lasts an hour."""
+MIN_PHASE_S = 0.1
+"""Shortest take-off, landing or trajectory period, s: shorter asks for accelerations no assembly has (a take-off to
+1 m in 0.1 s peaks at 580 m/s^2, refused by preflight), and below ~1e-162 s their square is 0 (a traceback)."""
 MAX_REACTION_S = 0.5
 """Longest a failsafe may wait before it acts (stale mocap, a loop stall, a silent module, a slow link), s. In
 0.5 s an assembly that lost its lift falls g t^2 / 2 = 1.2 m, more than the flight height (h0 = 1 m), and one
@@ -221,7 +224,7 @@ class TrajectorySection:
     kind: Literal["hover", "circle", "figure8"] = "figure8"
     size: float = Field(0.6, gt=0, le=MAX_GEOFENCE_M)
     """Figure-8 l0 or circle radius, m (the geofence bounds it)."""
-    period: float = Field(8.0, gt=0, le=MAX_DURATION_S)
+    period: float = Field(8.0, ge=MIN_PHASE_S, le=MAX_DURATION_S)
     """Figure-8 t_c or circle period, s (preflight bounds the speed and acceleration it asks; at most an hour)."""
     height: float = Field(1.0, gt=0, le=MAX_GEOFENCE_M)
     """h0, m (the geofence bounds it)."""
@@ -230,11 +233,11 @@ class TrajectorySection:
     roll_deg: float = 0.0
     """Roll target while tracking, deg (one the assembly hovers at, and with the controller's lean below
     ``failsafe.max_tilt_deg``: :func:`bound_issues`)."""
-    takeoff_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
+    takeoff_s: float = Field(3.0, ge=MIN_PHASE_S, le=MAX_DURATION_S)
     """Take-off time, s (at most an hour)."""
     settle_s: float = Field(1.5, ge=0, le=MAX_DURATION_S)
     """Settling before tracking (the attitude target blended to the trajectory's) and holding after it, s each."""
-    landing_s: float = Field(3.0, gt=0, le=MAX_DURATION_S)
+    landing_s: float = Field(3.0, ge=MIN_PHASE_S, le=MAX_DURATION_S)
     """Landing time, s (at most an hour; at least the height over 0.8 m/s: a shorter one is stretched to that,
     ``trajectory.MAX_LANDING_MPS``)."""
 

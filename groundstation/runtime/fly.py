@@ -318,7 +318,11 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
     for issue_key, issue in load(kind.config_issues)(cfg, assembly) if kind.config_issues else ():
         raise ConfigError(issue, path=src, key=issue_key)
     mac_key = mocap_mac_key(cfg.mocap, base, src)
-    log_file = _claim_log(log_path, (base / cfg.log_dir).resolve(), src)
+    try:
+        log_dir = (base / cfg.log_dir).resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop is a RuntimeError on Python < 3.13
+        raise ConfigError(f"log directory cannot be resolved: {exc}", path=src, key="log_dir") from None
+    log_file = _claim_log(log_path, log_dir, src)
     return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file, mac_key)
 
 

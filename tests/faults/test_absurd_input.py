@@ -39,6 +39,8 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
     ("takeoff_1e7_s", "takeoff_s = 1e7", {"roll_deg = 0.0": "roll_deg = 0.0\ntakeoff_s = 1e7"}, "trajectory.takeoff_s"),
     ("landing_1e7_s", "landing_s = 1e7", {"roll_deg = 0.0": "roll_deg = 0.0\nlanding_s = 1e7"}, "trajectory.landing_s"),
     ("figure8_period_1e7_s", "period = 1e7", {"period = 8.0": "period = 1e7"}, "trajectory.period"),
+    ("takeoff_1e-200_s", "takeoff_s = 1e-200 (its square is 0: a ZeroDivisionError traceback)",
+     {"roll_deg = 0.0": "roll_deg = 0.0\ntakeoff_s = 1e-200"}, "trajectory.takeoff_s"),
     ("takeoff_inf", "takeoff_s = inf", {"roll_deg = 0.0": "roll_deg = 0.0\ntakeoff_s = inf"},
      "trajectory.takeoff_s: Input should be a finite number"),
     ("blind_descent_1_mps", "failsafe.blind_descent_mps = 1 (a blind touchdown at 1 m/s)",
@@ -275,6 +277,16 @@ def _refused_at_once(args: list[str], fragment: str) -> None:
     """``groundstation ARGS`` as an operator runs it, given 60 s: refused, exit 2, one line (a hang fails here)."""
     proc = subprocess.run([sys.executable, "-m", "groundstation", *args], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and fragment in proc.stderr, proc.stderr
+
+
+@bad_input("fly with log_dir in a symlink loop (no --log: the log is named in it)",
+           "exit 2 naming log_dir (before: a RuntimeError traceback, exit 1)")
+def f_absurd_log_dir_in_a_symlink_loop(cli, tmp_path):
+    (tmp_path / "loop-a").symlink_to(tmp_path / "loop-b")
+    (tmp_path / "loop-b").symlink_to(tmp_path / "loop-a")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494",
+                      **{'log_dir = "../../out/flights"': f'log_dir = "{tmp_path / "loop-a"}"'})
+    _refused(cli, ("fly", str(cfg)), str(cfg), "log_dir")
 
 
 @bad_input("fly with a named pipe (FIFO) nobody writes to as the flight config",
