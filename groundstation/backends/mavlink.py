@@ -98,8 +98,11 @@ STOP_CONFIRM_S = 0.5
 LOSS_WINDOW_S = 0.5
 """The loss is taken over the probes sent in this stretch (ending ``link_timeout`` ago: younger ones may still be
 answered), s."""
-MIN_LOSS_PROBES = 10
+MIN_LOSS_PROBES = 20
 """Fewer probes in the window measure no loss."""
+LOSS_CONFIDENCE_Z = 2.0
+"""The loss read is the lower bound of this many standard deviations (Wilson) on the share of probes lost: 40
+probes are a noisy sample, and their plain share landed flights on healthy 2-5 % links (review)."""
 CLOCK_WINDOW_S = 0.2
 """The module's clock is compared with ours over the newest stretch this long, s."""
 FOREIGN_CLOCK_S = 0.05
@@ -319,7 +322,8 @@ class MavlinkBackend(BackendBase):
     def link_loss(self) -> np.ndarray:
         """Per module, the fraction of packets lost each way over :data:`LOSS_WINDOW_S`, from the probes left
         unanswered ``link_timeout`` after they went (an answer slower than that counts as lost too), both ways
-        taken alike: 1 - sqrt(answered). NaN under :data:`MIN_LOSS_PROBES`. Answers that stop while the rest of
+        taken alike: 1 - sqrt(answered), the share answered taken at the upper end of its confidence interval
+        (:data:`LOSS_CONFIDENCE_Z`). NaN under :data:`MIN_LOSS_PROBES`. Answers that stop while the rest of
         the link flows (or a round trip beyond the timeout) read as 100 %: a degraded link, never an old median
         held (nor a silence taken for a round trip: 30 % loss made runs of ten probes in a row go unanswered, read
         as 100 ms round trips that stopped the motors 0.95 m up; hostile campaign 29)."""
@@ -327,7 +331,11 @@ class MavlinkBackend(BackendBase):
         for m in self._modules:
             end = self._polled - self.settings.link_timeout
             judged = [answered for t, answered in m.sent if end - LOSS_WINDOW_S <= t < end]
-            out.append(1.0 - math.sqrt(sum(judged) / len(judged)) if len(judged) >= MIN_LOSS_PROBES else np.nan)
+            if len(judged) < MIN_LOSS_PROBES:
+                out.append(np.nan)
+                continue
+            lost = _wilson_lower(len(judged) - sum(judged), len(judged), LOSS_CONFIDENCE_Z)
+            out.append(1.0 - math.sqrt(1.0 - lost))
         return np.array(out)
 
     def disarm(self) -> None:
@@ -487,7 +495,7 @@ class MavlinkBackend(BackendBase):
                     self._gyro[i] = mw.FRD_TO_FLU @ np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
                     m.gyro_heard = now
                     m.up = mw.up_in_module(msg.roll, msg.pitch)
-                    _clock_sample(m.attitude_clock, now, msg.time_boot_ms * 1e-3 - now)
+                    _clock_sample(m.attitude_clock, now, msg.time_boot_ms * 1e-3 - now)  # uint32 ms: wraps
                 elif kind == "SERVO_OUTPUT_RAW":
                     # Outputs sent before the module saw the stop still show thrust; the disarm's ACK comes
                     # after them on the same link, so only later outputs say what is applied now.
@@ -504,7 +512,7 @@ class MavlinkBackend(BackendBase):
                     # too, and would measure only the way to itself) do not measure anything.
                     if msg.tc1 <= 0 or msg.get_srcComponent() != m.component_id or msg.ts1 not in m.probes:
                         continue
-                    clock = msg.tc1 * 1e-9 - now
+                    clock = _wrapped_ms(msg.tc1) * 1e-3 - now  # as ATTITUDE's time_boot_ms wraps (49.7 days)
                     if m.attitude_clock and abs(clock - max(q for _, q in m.attitude_clock)) > FOREIGN_CLOCK_S:
                         continue  # not the module's clock: something else on the link answers for it (lost)
                     _clock_sample(m.answer_clock, now, clock)
@@ -527,3 +535,16 @@ def _clock_sample(samples: deque[tuple[float, float]], now: float, clock: float)
     samples.append((now, clock))
     while samples[0][0] < now - CLOCK_WINDOW_S:
         samples.popleft()
+
+
+def _wrapped_ms(ns: int) -> float:
+    """A time in ns as a uint32 ms count wraps (``time_boot_ms``), keeping its fraction, ms."""
+    return (ns / 1e6) % 2.0**32
+
+
+def _wilson_lower(k: int, n: int, z: float) -> float:
+    """Lower end of the Wilson score interval of ``k`` in ``n`` at ``z`` standard deviations."""
+    p = k / n
+    centre = p + z * z / (2 * n)
+    spread = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, (centre - spread) / (1 + z * z / n))

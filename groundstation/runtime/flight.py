@@ -137,10 +137,14 @@ def poses_kept_up(pose: PoseSource, period: float):
     did. Every keyed flight with modules took off on a pose 1.04 s old and began a blind landing from the ground in
     its first period (hostile campaign 29)."""
     stop = threading.Event()
+    failed: list[BaseException] = []
 
     def keep_up() -> None:
-        while not stop.wait(period):
-            pose.keep_up()
+        try:
+            while not stop.wait(period):
+                pose.keep_up()
+        except Exception as exc:  # noqa: BLE001 - raised in the caller's thread, after the block
+            failed.append(exc)
 
     thread = threading.Thread(target=keep_up, name="poses-kept-up", daemon=True)
     thread.start()
@@ -149,6 +153,8 @@ def poses_kept_up(pose: PoseSource, period: float):
     finally:
         stop.set()
         thread.join()
+    if failed:  # the stream went unread: not something to take off on
+        raise failed[0]
 
 
 @dataclass(frozen=True)

@@ -343,11 +343,12 @@ def test_answers_that_stop_are_a_lost_link_not_the_last_round_trip():
             be.send(np.zeros(4))
             be.telemetry()
             time.sleep(0.004)
-        assert be.telemetry().link_loss[0] == 1.0 and be.link_latency()[0] < 0.1
+        assert be.telemetry().link_loss[0] > 0.5 and be.link_latency()[0] < 0.1  # all lost (its lower bound)
 
 
 def test_the_loss_each_way_is_measured_from_the_probes_left_unanswered():
-    """A vehicle answering one probe in two: half the round trips lost, 29 % each way (both ways alike)."""
+    """A vehicle answering one probe in two: half the round trips lost, 29 % each way (both ways alike), read at
+    the low end of its confidence interval."""
     with (_vehicle(14662, answer_after=0.0, every=2),
           MavlinkBackend(["udpout:127.0.0.1:14662"], U_MAX, ASM.module_rotations[:1],
                          MavlinkSettings(link_timeout=0.1, max_latency=0.5)) as be):
@@ -357,7 +358,8 @@ def test_the_loss_each_way_is_measured_from_the_probes_left_unanswered():
             be.send(np.zeros(4))
             be.telemetry()
             time.sleep(0.004)
-        assert be.link_loss()[0] == pytest.approx(1.0 - 0.5 ** 0.5, abs=0.05)
+        # 29 % each way, read at the low end of its confidence interval (~40 probes): 15-29 %
+        assert 0.15 < be.link_loss()[0] <= 1.0 - 0.5 ** 0.5 + 0.02, be.link_loss()
 
 
 def test_telemetry_held_back_behind_prompt_answers_counts_in_the_round_trip():
@@ -383,4 +385,4 @@ def test_a_module_whose_own_answers_do_not_come_is_refused(port, answers):
                         MavlinkSettings(preflight_timeout=0.5)) as be:
         assert be.preflight().issues == (f"module 0 (udpout:127.0.0.1:{port}) does not answer TIMESYNC: its "
                                          f"link's round trip cannot be measured",)
-        assert np.isnan(be.link_latency()[0]) and be.link_loss()[0] == 1.0
+        assert np.isnan(be.link_latency()[0]) and be.link_loss()[0] > 0.5

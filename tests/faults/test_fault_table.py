@@ -49,7 +49,7 @@ BAD_INPUTS = [
     ("duration_1e5", {}, ("--duration", "1e5"), "--duration"),
     ("duration_negative", {}, ("--duration", "-1"), "--duration"),
     ("duration_nan", {}, ("--duration", "nan"), "--duration"),
-    ("figure8_period_1e-6", {"period = 8.0": "period = 1e-6"}, (), "trajectory: the trajectory is beyond"),
+    ("figure8_period_1e-6", {"period = 8.0": "period = 1e-6"}, (), "trajectory.period"),
     ("mocap_rate_1e9", {"rate_hz = 100": "rate_hz = 1e9"}, (), "mocap.rate_hz"),
     ("mavlink_port_99999", {'kind = "sim"': 'kind = "mavlink"\nmodules = ["udpout:127.0.0.1:99999", '
                             '"udpout:127.0.0.1:14561"]'}, (), "port 99999 is not in 1..65535"),
