@@ -321,8 +321,8 @@ class MavlinkBackend(BackendBase):
 
     def link_loss(self) -> np.ndarray:
         """Per module, the fraction of packets lost each way over :data:`LOSS_WINDOW_S`, from the probes left
-        unanswered ``link_timeout`` after they went (an answer slower than that counts as lost too), both ways
-        taken alike: 1 - sqrt(answered), the share answered taken at the upper end of its confidence interval
+        unanswered ``link_timeout`` after they went (an answer that comes later still marks its probe answered),
+        both ways taken alike: 1 - sqrt(answered), the share answered taken at the upper end of its confidence interval
         (:data:`LOSS_CONFIDENCE_Z`). NaN under :data:`MIN_LOSS_PROBES`. Answers that stop while the rest of
         the link flows (or a round trip beyond the timeout) read as 100 %: a degraded link, never an old median
         held (nor a silence taken for a round trip: 30 % loss made runs of ten probes in a row go unanswered, read

@@ -20,7 +20,7 @@ class Phase(StrEnum):
     EMERGENCY = "emergency"
     """Motors stopped by the emergency stop."""
     ABORTED = "aborted"
-    """Never armed: nothing spun."""
+    """Ended before take-off: never armed, or armed while the operator asked to stop and disarmed at once."""
 
     @property
     def airborne(self) -> bool:

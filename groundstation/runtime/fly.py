@@ -143,7 +143,8 @@ class Faults:
 class FlyResult:
     log_path: Path
     phase: Phase
-    """Final state: ``done`` (landed, disarmed), ``emergency`` (motors stopped) or ``aborted`` (never armed)."""
+    """Final state: ``done`` (landed, disarmed), ``emergency`` (motors stopped) or ``aborted`` (ended before
+    take-off: never armed, or disarmed while arming)."""
     reason: str
     """Why the flight ended early ("" when it flew its plan; "operator land" when the operator cut it short)."""
     metrics: FlightSummary
