@@ -374,13 +374,11 @@ def fly(config_path: str | Path, *, duration: float | None = None, log_path: str
     reason, figures) is logged on every way out once the log is open: a landing, an emergency, a refused
     preflight, the operator before arming, a crash of the loop (re-raised after)."""
     requests = requests or Requests()
-    started = threading.Event()
-    """Set when the flight loop starts or the flight ends before it; until then a second signal interrupts whatever
-    the flight waits for."""
-    restore = _install_signals(requests, started) if handle_signals else None
+    waits = _Waits()
+    restore = _install_signals(requests, waits) if handle_signals else None
     try:
         return _fly(config_path, duration, log_path, requests, faults or Faults(), on_period, on_status,
-                    activity or LoopActivity(), live_port, started)
+                    activity or LoopActivity(), live_port, waits)
     finally:
         if restore is not None:
             restore()
@@ -390,8 +388,33 @@ class _Stopped(Exception):
     """The operator ended the flight before it armed (the reason is the message)."""
 
 
+class _Waits:
+    """Where the operator's second signal before arming interrupts what the flight waits for (``KeyboardInterrupt``):
+    only in waits that look at no request, the world's links opening (before the log) and the modules' own checks.
+    Everywhere else the signal sets the stop, which the preflight's next check sees. Raised anywhere, it could land
+    while the log opened or between the preflight's end and its handler, and the command said "interrupted" (exit
+    130, no summary) or not by the signal's timing (a Ctrl-C storm in CI)."""
+
+    def __init__(self) -> None:
+        self.open = True
+        """A signal may raise now; from the start until the log opens, and in :meth:`interruptible` blocks."""
+
+    @contextlib.contextmanager
+    def interruptible(self):
+        self.open = True
+        try:
+            yield
+        finally:
+            self.open = False
+
+    def take(self) -> bool:
+        """Whether the signal arriving now raises (once: the next one, in the same wait, only stops)."""
+        was, self.open = self.open, False
+        return was
+
+
 def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on_period, on_status,
-         activity: LoopActivity, live_port: int | None, started: threading.Event) -> FlyResult:
+         activity: LoopActivity, live_port: int | None, waits: _Waits) -> FlyResult:
     p = prepare(config_path, duration, log_path)
     bounds = QualityBounds(**asdict(p.cfg.quality))
     ended_cleanly = [False]
@@ -419,6 +442,7 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
                                  SubscriberSettings(max_speed=m.max_speed, latency=m.latency_s, stamps=stamps),
                                  mac_key=p.mac_key)
             stack.callback(sub.close)
+            waits.open = False  # from here on a log is written, and the end must be in it
             log = FlightLog(p.log_file, {"config": json.dumps(asdict(p.cfg)), "config_path": p.src,
                                          "code_version": code_version(),
                                          "assembly": json.dumps(assembly_record(p.assembly))}, activity=activity,
@@ -437,24 +461,20 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
             wall0 = None
             try:
                 estimator = RigidBodyFilter(estimator_settings(p.cfg), p.assembly.mass)
-                plan = _preflight(p, world, sub, pose, estimator, log, firmware_issues, to_log, requests)
+                plan = _preflight(p, world, sub, pose, estimator, log, firmware_issues, to_log, requests, waits)
                 flight = Flight(p.assembly, plan, world.backend, pose, gains=Gains(**asdict(p.cfg.gains)),
                                 allocation=p.cfg.allocation, policy=FailsafePolicy(**asdict(p.cfg.failsafe)),
                                 log=log, requests=requests, before_period=world.before_period(on_period),
                                 to_log_time=to_log, truth=world.truth, on_status=on_status, activity=activity,
                                 estimator=estimator)
-                started.set()
                 wall0 = time.perf_counter()
                 _run(flight, p.cfg, log, to_log)
             except _Stopped as exc:
-                started.set()  # ending: a signal from now on must not interrupt the end's logging
                 why_not = str(exc)
             except BaseException as exc:
-                started.set()
                 if isinstance(exc, KeyboardInterrupt) and requests.stop.is_set() and flight is None:
-                    # The operator's second signal before arming, which interrupts what the preflight waits for:
-                    # the same end as one the preflight saw (_Stopped). Re-raised, the command said "interrupted"
-                    # (exit 130, no summary) or not, by the signal's timing (hostile campaign).
+                    # The operator's second signal interrupted the modules' checks (_Waits): the same end as one
+                    # the preflight saw (_Stopped).
                     why_not = requests.abort_reason("in preflight")
                 else:
                     why_not = str(exc) if isinstance(exc, PreflightError) else (
@@ -534,7 +554,8 @@ def _size(path: Path) -> int:
 
 
 def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est: RigidBodyFilter, log: FlightLog,
-               firmware_issues: list[str], to_log: Callable[[float], float], requests: Requests) -> FlightPlan:
+               firmware_issues: list[str], to_log: Callable[[float], float], requests: Requests,
+               waits: _Waits) -> FlightPlan:
     """Stage 3: let the mocap stream start (and a simulated assembly settle), check the backend, mocap, level and
     stillness, log the scene; the plan re-anchored where mocap sees the assembly; ``est`` follows the poses from
     here on (the flight goes on with it). Raises PreflightError, or :class:`_Stopped` when the operator asks to
@@ -560,7 +581,8 @@ def _preflight(p: _Prepared, world, sub: PoseSubscriber, pose: _LoggedPose, est:
         est.predict(pose.now(), None)
         for sample in pose.measurements():
             est.correct(sample)
-    with poses_kept_up(pose, PREFLIGHT_POLL_S):  # the modules' checks take a second or more on hardware
+    _stop_if_asked(requests)
+    with poses_kept_up(pose, PREFLIGHT_POLL_S), waits.interruptible():  # a second or more on hardware
         report = world.backend.preflight()
     est.predict(pose.now(), None)  # and what arrived meanwhile is the newest the estimate knows
     for sample in pose.measurements():
@@ -637,11 +659,12 @@ def _run(flight: Flight, cfg: FlightConfig, log: FlightLog, to_log: Callable[[fl
     return stats
 
 
-def _install_signals(requests: Requests, started: threading.Event):
+def _install_signals(requests: Requests, waits: _Waits):
     """First SIGINT/SIGTERM/SIGTSTP/SIGHUP (or another of :data:`LANDING_SIGNALS`): land (before the loop starts: end
     the flight unarmed, at the next check). A second one (not of :data:`NEVER_A_STOP`): stop the motors; before
-    the loop starts, nothing is armed, so it also interrupts whatever the flight waits for (a link that does not
-    open). The signal's name goes into the reason. Returns a function restoring the old handlers.
+    the loop starts, nothing is armed, so it also interrupts a wait that looks at no request (a link that does not
+    open, the modules' checks: :class:`_Waits`). The signal's name goes into the reason. Returns a function
+    restoring the old handlers.
 
     * SIGHUP is an SSH connection or the terminal going away: the flight must not end with the process, rotors on.
       It never escalates to a stop, nor does a SIGTERM after it: one hang-up can deliver two (the kernel's to the
@@ -671,10 +694,7 @@ def _install_signals(requests: Requests, started: threading.Event):
         requests.source = signal_name(signum)
         if requests.land.is_set() and signum != signal.SIGHUP and not not_asked:
             requests.stop.set()
-            if not started.is_set():
-                # Once: a third signal, arriving while the end is logged (before the except clause that catches
-                # this one could set it), made the command "interrupted" after all.
-                started.set()
+            if waits.take():
                 raise KeyboardInterrupt
         requests.land.set()
 

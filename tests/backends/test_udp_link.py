@@ -52,6 +52,7 @@ def test_the_arrival_is_the_kernels_not_the_read():
         assert link.stamped
         link.send_packet(CRTPPacket(0xFF, b""))
         _, addr = server.recvfrom(64)
+        _until_the_kernel_stamps(link, server, addr)
         sent = time.monotonic()
         server.sendto(b"\x2c\x07", addr)
         time.sleep(0.2)  # the reader is busy; the datagram waits in the kernel
@@ -65,6 +66,21 @@ def test_the_arrival_is_the_kernels_not_the_read():
     finally:
         link.close()
         server.close()
+
+
+def _until_the_kernel_stamps(link: StampedUdpLink, server: socket.socket, addr) -> None:
+    """Linux turns arrival stamping on for the first socket that asks from a work queue, a moment later; a
+    datagram arriving before that is stamped when it is read (CI: the arrival was the read, 0.2 s late). A link
+    opens seconds before a flight reads it; this test waits for the same."""
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        server.sendto(b"\x2c\x00", addr)
+        time.sleep(0.05)
+        read = time.monotonic()
+        got = link.receive()
+        if got is not None and got[1] <= read - 0.04:
+            return
+    raise AssertionError("the kernel never stamped an arrival in 5 s")
 
 
 def test_a_closed_port_is_reported_once_and_reading_goes_on():

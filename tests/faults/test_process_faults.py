@@ -179,8 +179,8 @@ def f_sigterm_in_preflight(cli, tmp_path):
 @process_fault("Ctrl-C every 3 ms from the moment fly's log is written until it exits (in its preflight: an operator "
                "hammering Ctrl-C)",
                "never armed; the summary printed and the log finalized, both saying aborted by the operator in "
-               "preflight; exit 1 (a signal arriving while the end was logged made it 'interrupted', exit 130, no "
-               "summary, in about half the runs)")
+               "preflight; exit 1 (a signal used to interrupt the log's opening or the end's logging: 'interrupted', "
+               "exit 130, no summary, in one CI run; now only the modules' own checks are interrupted)")
 def f_ctrl_c_storm_in_preflight(cli, tmp_path):
     log = tmp_path / "storm.mcap"
     proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7678"), log)

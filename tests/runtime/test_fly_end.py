@@ -175,17 +175,16 @@ def test_a_flight_beyond_its_bounds_says_so_in_its_result_and_log(tmp_path):
 def test_signals_land_then_stop_and_before_the_loop_interrupt():
     """Real signals to this process: the first asks to land (named), the second stops, but a hang-up never does
     (nor a SIGTERM after it);
-    before the loop started (nothing armed) the second also interrupts whatever the flight waits for. Ctrl-Z
-    (SIGTSTP) is Ctrl-C; SIGTTIN and SIGTTOU are ignored (each would stop the process)."""
+    in a wait that looks at no request (nothing armed) the second also interrupts it, once. Ctrl-Z (SIGTSTP) is
+    Ctrl-C; SIGTTIN and SIGTTOU are ignored (each would stop the process)."""
     import os
     import signal
-    import threading
 
     for started_first in (False, True):
-        requests, started = Requests(), threading.Event()
+        requests, waits = Requests(), fly_module._Waits()
         if started_first:
-            started.set()
-        restore = fly_module._install_signals(requests, started)
+            waits.open = False
+        restore = fly_module._install_signals(requests, waits)
         try:
             os.kill(os.getpid(), signal.SIGTTIN)
             os.kill(os.getpid(), signal.SIGTTOU)
@@ -205,12 +204,17 @@ def test_signals_land_then_stop_and_before_the_loop_interrupt():
                 with pytest.raises(KeyboardInterrupt):
                     os.kill(os.getpid(), signal.SIGTSTP)
             assert requests.stop.is_set() and requests.why("operator stop") == "operator stop (SIGTSTP)"
+            os.kill(os.getpid(), signal.SIGINT)  # raised once: a third signal never interrupts the end
+            with pytest.raises(KeyboardInterrupt), waits.interruptible():
+                os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+            assert not waits.open
         finally:
             restore()
     for first in (signal.SIGINT, signal.SIGTERM):  # the landing begun by another signal: the hang-up still counts
-        requests, started = Requests(), threading.Event()
-        started.set()
-        restore = fly_module._install_signals(requests, started)
+        requests, waits = Requests(), fly_module._Waits()
+        waits.open = False
+        restore = fly_module._install_signals(requests, waits)
         try:
             os.kill(os.getpid(), first)
             os.kill(os.getpid(), signal.SIGHUP)
