@@ -203,6 +203,8 @@ class MavlinkBackend(BackendBase):
             m.rtts.clear()  # measured afresh: the link as it is now
             m.probes.clear()
             m.sent.clear()
+            m.answer_clock.clear()
+            m.attitude_clock.clear()
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
         while self._clock() < deadline and not all(m.battery_heard >= since and r and len(m.rtts) >= s.latency_samples
                                                    for m, r in zip(self._modules, requested, strict=True)):
@@ -259,6 +261,7 @@ class MavlinkBackend(BackendBase):
         lead_end = self._clock() + SETPOINT_LEAD_S
         while self._clock() < lead_end:  # PX4 enters offboard only once setpoints stream
             self._send_controls(np.zeros_like(self._applied))
+            self._probe()  # measured up to take-off: the flight's first loss and round trip are the link's now
             time.sleep(0.01)
             self._drain()
         for m in self._modules:
@@ -311,11 +314,14 @@ class MavlinkBackend(BackendBase):
         that is more than ``stamp_slack`` (else 0; NaN until both came): what the link holds back that the answers
         do not show (the way there taken as long again)."""
         out = []
+        since = self._polled - CLOCK_WINDOW_S  # a stream that stopped says nothing of the link as it is now
         for m in self._modules:
-            if not (m.answer_clock and m.attitude_clock):
+            answers = [q for t, q in m.answer_clock if t >= since]
+            attitudes = [q for t, q in m.attitude_clock if t >= since]
+            if not (answers and attitudes):
                 out.append(np.nan)
                 continue
-            held = max(q for _, q in m.answer_clock) - max(q for _, q in m.attitude_clock)
+            held = max(answers) - max(attitudes)
             out.append(held if held > self.settings.stamp_slack else 0.0)
         return np.array(out)
 
@@ -454,6 +460,7 @@ class MavlinkBackend(BackendBase):
                 sent = self._clock()
             self._send_controls(np.zeros_like(self._applied))
             self._heartbeat()
+            self._probe()
             time.sleep(0.005)
             self._drain()
         for i, m in enumerate(self._modules):
@@ -513,8 +520,10 @@ class MavlinkBackend(BackendBase):
                     if msg.tc1 <= 0 or msg.get_srcComponent() != m.component_id or msg.ts1 not in m.probes:
                         continue
                     clock = _wrapped_ms(msg.tc1) * 1e-3 - now  # as ATTITUDE's time_boot_ms wraps (49.7 days)
-                    if m.attitude_clock and abs(clock - max(q for _, q in m.attitude_clock)) > FOREIGN_CLOCK_S:
-                        continue  # not the module's clock: something else on the link answers for it (lost)
+                    # Not the module's clock (or none of its ATTITUDE yet to tell): something else on the link may
+                    # answer for it (lost).
+                    if not m.attitude_clock or abs(clock - max(q for _, q in m.attitude_clock)) > FOREIGN_CLOCK_S:
+                        continue
                     _clock_sample(m.answer_clock, now, clock)
                     sent = m.probes[msg.ts1]
                     m.probes = {k: t for k, t in m.probes.items() if t > sent}

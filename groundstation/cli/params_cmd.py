@@ -31,13 +31,13 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
 
     from groundstation.firmware.modules import check_modules, required_params
     from groundstation.firmware.params import issues
-    from groundstation.runtime.flight_config import load_flight_config
+    from groundstation.runtime.flight_config import load_flight_config, log_directory
 
     cfg, base = load_flight_config(flight)
     wanted = required_params(cfg.backend, base, Path(param_file).resolve() if param_file else None)
     n = len(cfg.backend.modules)
     with stderr_console().status("connecting") as status:
-        checks = check_modules(cfg.backend, wanted, apply=apply, cache_dir=(base / cfg.log_dir).resolve(),
+        checks = check_modules(cfg.backend, wanted, apply=apply, cache_dir=log_directory(cfg, base, flight),
                                on_module=lambda done: status.update(f"modules checked: {done}/{n}"))
     if as_json:
         click.echo(json.dumps([asdict(c) | {"ok": c.ok} for c in checks]))

@@ -410,6 +410,15 @@ def mocap_mac_key(m: MocapSection, base: Path, src: str):
         raise ConfigError(str(exc), path=src, key="mocap.key_file") from None
 
 
+def log_directory(cfg: FlightConfig, base: Path, src: str) -> Path:
+    """``log_dir`` resolved against the config's directory; one it cannot resolve (a symlink loop) is a
+    ConfigError naming the key."""
+    try:
+        return (base / cfg.log_dir).resolve()
+    except (OSError, RuntimeError) as exc:  # a symlink loop is a RuntimeError on Python < 3.13
+        raise ConfigError(f"log directory cannot be resolved: {exc}", path=src, key="log_dir") from None
+
+
 def mocap_security(m: MocapSection, base: Path, src: str):
     """The Zenoh security of the mocap link (None: plain), its files resolved against ``base``; a missing file
     (or an access-control file that is not text) is a ConfigError naming the key."""

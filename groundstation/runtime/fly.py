@@ -82,6 +82,7 @@ from groundstation.runtime.flight_config import (
     TrajectorySection,
     estimator_settings,
     load_flight_config,
+    log_directory,
     mocap_mac_key,
     mocap_security,
 )
@@ -319,11 +320,7 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
     for issue_key, issue in load(kind.config_issues)(cfg, assembly) if kind.config_issues else ():
         raise ConfigError(issue, path=src, key=issue_key)
     mac_key = mocap_mac_key(cfg.mocap, base, src)
-    try:
-        log_dir = (base / cfg.log_dir).resolve()
-    except (OSError, RuntimeError) as exc:  # a symlink loop is a RuntimeError on Python < 3.13
-        raise ConfigError(f"log directory cannot be resolved: {exc}", path=src, key="log_dir") from None
-    log_file = _claim_log(log_path, log_dir, src)
+    log_file = _claim_log(log_path, base, cfg, src)
     return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file, mac_key)
 
 
@@ -331,10 +328,10 @@ AUTO_NAMES = 1000
 """Most logs one log directory takes in one second (``flight-<date>-<time>[-k].mcap``)."""
 
 
-def _claim_log(log_path: str | Path | None, log_dir: Path, src: str) -> Path:
+def _claim_log(log_path: str | Path | None, base: Path, cfg: FlightConfig, src: str) -> Path:
     """Claim the flight's log file: created empty and exclusively, so a log is never overwritten and of two flights
     given one ``--log`` only one gets it. ``--log`` naming a file that exists is refused; in the config's
-    ``log_dir`` a name taken (two flights in one second) gets the next free ``-k``."""
+    ``log_dir`` (not looked at with ``--log``) a name taken (two flights in one second) gets the next free ``-k``."""
     if log_path:
         path = Path(log_path)
         try:
@@ -346,6 +343,7 @@ def _claim_log(log_path: str | Path | None, log_dir: Path, src: str) -> Path:
             raise ConfigError(f"the log file cannot be written: {exc}", path=src, key="--log") from None
         return path
     stamp = time.strftime("flight-%Y%m%d-%H%M%S")
+    log_dir = log_directory(cfg, base, src)
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
         for k in range(AUTO_NAMES):

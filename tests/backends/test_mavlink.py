@@ -260,15 +260,15 @@ def test_module_gravity_and_two_links_to_one_vehicle():
 
 @contextlib.contextmanager
 def _vehicle(port: int, answer_after: float | None, silent: threading.Event | None = None, answerer: int = 1,
-             every: int = 1, attitude_lag: float = 0.0, answer_clock: float = 0.0):
+             every: int = 1, attitude_lag: float | None = 0.0, answer_clock: float = 0.0):
     """A PX4-like vehicle on ``port``: heartbeats, battery and attitude; with ``answer_after`` it answers each
     TIMESYNC request that long after it came (and again, a repeat), and sends a forged answer at once (a ``ts1``
     never sent) and requests of its own (``tc1`` 0), none of which may count as a round trip; once ``silent`` is
     set it answers no more (its other streams go on); ``answerer``: the component id its answers come from (1, the
     autopilot; 191, a companion computer on the vehicle); ``every``: it answers one request in that many (a lossy
     link); ``attitude_lag``: its ATTITUDE that much older on its clock than its answers (what a relay answering
-    for it and holding the rest back makes of the stream); ``answer_clock``: its answers' clock that far off its
-    own (something else answering). Runs while the block does."""
+    for it and holding the rest back makes of the stream; None: it sends none); ``answer_clock``: its answers' clock
+    that far off its own (something else answering). Runs while the block does."""
     vehicle = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
     stop = threading.Event()
     due: list[tuple[float, int]] = []
@@ -295,8 +295,8 @@ def _vehicle(port: int, answer_after: float | None, silent: threading.Event | No
                 vehicle.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_QUADROTOR, mavutil.mavlink.MAV_AUTOPILOT_PX4,
                                            0, 0, 3)
                 vehicle.mav.sys_status_send(0, 0, 0, 0, 4000, -1, -1, 0, 0, 0, 0, 0, 0)
-                # on the clock its answers carry
-                vehicle.mav.attitude_send(int((now - attitude_lag) * 1e3), 0, 0, 0, 0, 0, 0)
+                if attitude_lag is not None:  # on the clock its answers carry
+                    vehicle.mav.attitude_send(int((now - attitude_lag) * 1e3), 0, 0, 0, 0, 0, 0)
             elif kind == "TIMESYNC" and msg.tc1 == 0 and answer_after is not None and not (silent and silent.is_set()):
                 if next(requests) % every:
                     continue
@@ -377,7 +377,8 @@ def test_telemetry_held_back_behind_prompt_answers_counts_in_the_round_trip():
     (14656, {"answer_after": None}),  # none at all
     (14660, {"answer_after": 0.0, "answerer": 191}),  # a companion computer's: only the way to itself
     (14666, {"answer_after": 0.0, "answer_clock": 1.0}),  # on a clock a second off the module's own stamps
-], ids=["silent", "another-component", "another-clock"])
+    (14668, {"answer_after": 0.0, "attitude_lag": None}),  # no ATTITUDE: no clock of its own to check them on
+], ids=["silent", "another-component", "another-clock", "no-clock-to-check"])
 def test_a_module_whose_own_answers_do_not_come_is_refused(port, answers):
     """TIMESYNC is broadcast, and anything on the link may answer: only the module's autopilot, on the module's own
     clock, measures the link that flies."""

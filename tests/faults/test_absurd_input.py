@@ -14,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from groundstation.runtime.fly import prepare
 from tests.faults.table import Fault, bad_input, rows
 from tests.peers import ROOT
-from tests.runtime.test_fly import config_with
+from tests.runtime.test_fly import config_with, sitl_config
 
 TOY_ASSEMBLY = str(ROOT / "configs/assemblies/toy_v2.json")
 TOY_TASK = str(ROOT / "configs/tasks/toy_push_y.toml")
@@ -279,14 +280,19 @@ def _refused_at_once(args: list[str], fragment: str) -> None:
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and fragment in proc.stderr, proc.stderr
 
 
-@bad_input("fly with log_dir in a symlink loop (no --log: the log is named in it)",
-           "exit 2 naming log_dir (before: a RuntimeError traceback, exit 1)")
+@bad_input("fly and params with log_dir in a symlink loop (fly without --log: the log is named in it; params "
+           "keeps the modules' parameter tables there)",
+           "exit 2 naming log_dir (before: a RuntimeError traceback, exit 1); fly --log elsewhere never looks at it")
 def f_absurd_log_dir_in_a_symlink_loop(cli, tmp_path):
     (tmp_path / "loop-a").symlink_to(tmp_path / "loop-b")
     (tmp_path / "loop-b").symlink_to(tmp_path / "loop-a")
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494",
-                      **{'log_dir = "../../out/flights"': f'log_dir = "{tmp_path / "loop-a"}"'})
+    loop = {'log_dir = "../../out/flights"': f'log_dir = "{tmp_path / "loop-a"}"'}
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **loop)
     _refused(cli, ("fly", str(cfg)), str(cfg), "log_dir")
+    assert prepare(cfg, None, tmp_path / "elsewhere.mcap").log_file == tmp_path / "elsewhere.mcap"
+    modules = sitl_config(tmp_path, "crazyflie", 19748, "tcp/127.0.0.1:7495")
+    modules.write_text(modules.read_text().replace(*next(iter(loop.items()))))
+    _refused(cli, ("params", str(modules)), str(modules), "log_dir", "log directory cannot be resolved")
 
 
 @bad_input("fly with a named pipe (FIFO) nobody writes to as the flight config",
