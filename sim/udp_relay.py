@@ -2,13 +2,17 @@
 
     python -m sim.udp_relay --listen 19950 --target 19850 --links 2 --delay-ms 30 [--loss 0.02]
                             [--duplicate 0.2] [--reorder 0.2 --reorder-ms 10] [--after 6] [--seed 1]
+                            [--answer-timesync]
 
 Link i relays ``127.0.0.1:<listen + i>`` (what the ground station talks to) to ``127.0.0.1:<target + i>`` (a
 simulated module from ``groundstation sim-peer``) and the replies back. Every packet, in either direction, is
 delayed by ``--delay-ms``; lost with probability ``--loss``; sent twice with ``--duplicate``; and with
 ``--reorder`` held back a further ``--reorder-ms`` so that later packets overtake it. Faults start ``--after``
-seconds after the first packet (a link that degrades mid-flight). Runs until SIGTERM/SIGINT and then prints how
-many packets it relayed, dropped, duplicated and reordered as one JSON line.
+seconds after the first packet (a link that degrades mid-flight). With ``--answer-timesync`` (MAVLink links) the
+relay, once its faults start, answers the ground station's ``TIMESYNC`` probes itself at once, on the module's
+clock as the module's newest ``ATTITUDE`` showed it, and keeps them from the module: a hostile relay hiding what it
+holds back. Runs until SIGTERM/SIGINT and then prints how many packets it relayed, dropped, duplicated, reordered
+and answered as one JSON line.
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ class Faults:
     reorder_s: float = 0.01
     after_s: float = 0.0
     """Faults start this long after the first packet, s."""
+    answer_timesync: bool = False
+    """Answer MAVLink ``TIMESYNC`` probes in the module's name (see the module docstring)."""
 
 
 @dataclass
@@ -47,7 +53,38 @@ class Counts:
     dropped: int = 0
     duplicated: int = 0
     reordered: int = 0
+    answered: int = 0
     queue: list = field(default_factory=list, repr=False)
+
+
+class _ClockForger:
+    """One MAVLink link's forger: learns the module (system id, ``time_boot_ms`` and when it came) from what it sends,
+    and answers a probe (``tc1`` 0) in its name on that clock advanced by the time since."""
+
+    def __init__(self) -> None:
+        from pymavlink import mavutil
+
+        self._mavlink = mavutil.mavlink
+        self._down = mavutil.mavlink.MAVLink(None)
+        self._up = mavutil.mavlink.MAVLink(None)
+        self._down.robust_parsing = self._up.robust_parsing = True
+        self._module: tuple[int, float, float] | None = None
+        """(system id, its time_boot_ms in ms, when that arrived here on ``time.monotonic``)."""
+
+    def from_module(self, data: bytes, now: float) -> None:
+        for msg in self._down.parse_buffer(data) or ():
+            if msg.get_type() == "ATTITUDE":
+                self._module = (msg.get_srcSystem(), float(msg.time_boot_ms), now)
+
+    def answer(self, data: bytes, now: float) -> bytes | None:
+        """The forged answer to ``data`` if it is a probe and the module's clock is known (else None)."""
+        probes = [m for m in self._up.parse_buffer(data) or () if m.get_type() == "TIMESYNC" and m.tc1 == 0]
+        if not probes or self._module is None:
+            return None
+        system, boot_ms, seen = self._module
+        as_module = self._mavlink.MAVLink(None, srcSystem=system, srcComponent=self._mavlink.MAV_COMP_ID_AUTOPILOT1)
+        tc1 = int((boot_ms + (now - seen) * 1e3) * 1e6)
+        return as_module.timesync_encode(tc1, probes[-1].ts1).pack(as_module)
 
 
 class UdpRelay:
@@ -70,6 +107,7 @@ class UdpRelay:
         self._started: float | None = None
         self._running = True
         self._seq = 0
+        self._forgers = [_ClockForger() for _ in range(links)] if faults.answer_timesync else []
 
     def stop(self, *_) -> None:
         self._running = False
@@ -90,6 +128,11 @@ class UdpRelay:
             self._seq += 1
             heapq.heappush(self.counts.queue, (now + delay, self._seq, sock, data, addr))
 
+    def _forged(self, link: int, data: bytes, now: float) -> bytes | None:
+        if not self._forgers or self._started is None or now - self._started < self.faults.after_s:
+            return None
+        return self._forgers[link].answer(data, now)
+
     def run(self) -> Counts:
         socks = self._front + self._back
         while self._running:
@@ -106,9 +149,16 @@ class UdpRelay:
                 if s in self._front:
                     i = self._front.index(s)
                     self._client[i] = addr
-                    self._schedule(now, self._back[i], data, self._targets[i])
+                    forged = self._forged(i, data, now)
+                    if forged is not None:
+                        s.sendto(forged, addr)
+                        self.counts.answered += 1
+                    else:
+                        self._schedule(now, self._back[i], data, self._targets[i])
                 else:
                     i = self._back.index(s)
+                    if self._forgers:
+                        self._forgers[i].from_module(data, now)
                     if self._client[i] is not None:
                         self._schedule(now, self._front[i], data, self._client[i])
             while q and q[0][0] <= time.monotonic():
@@ -135,14 +185,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reorder-ms", type=float, default=10.0)
     ap.add_argument("--after", type=float, default=0.0, help="faults start this long after the first packet, s")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--answer-timesync", action="store_true",
+                    help="answer MAVLink TIMESYNC probes in the module's name, on its clock (a hostile relay)")
     a = ap.parse_args(argv)
     relay = UdpRelay(a.listen, a.target, a.links,
-                     Faults(a.delay_ms * 1e-3, a.loss, a.duplicate, a.reorder, a.reorder_ms * 1e-3, a.after), a.seed)
+                     Faults(a.delay_ms * 1e-3, a.loss, a.duplicate, a.reorder, a.reorder_ms * 1e-3, a.after,
+                            a.answer_timesync), a.seed)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, relay.stop)
     c = relay.run()
     print(json.dumps({"relayed": c.relayed, "dropped": c.dropped, "duplicated": c.duplicated,
-                      "reordered": c.reordered}), flush=True)
+                      "reordered": c.reordered, "answered": c.answered}), flush=True)
     return 0
 
 
