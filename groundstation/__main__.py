@@ -1,4 +1,4 @@
-from groundstation.cli import main
+from groundstation.launch import main
 
 if __name__ == "__main__":  # not when multiprocessing's spawn re-imports this module in a child
     main()

@@ -26,12 +26,12 @@ from groundstation.cli.params_cmd import params_command
 from groundstation.cli.replay_cmd import replay_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import BackendError, GroundstationError
+from groundstation.launch import EXIT_INTERRUPTED
 from groundstation.output import StdoutError, hold_standard_descriptors, stdout_lost
 from groundstation.runtime.signals import LANDING_SIGNALS
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
-EXIT_INTERRUPTED = 130
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
