@@ -2,7 +2,7 @@
 
     python -m sim.udp_relay --listen 19950 --target 19850 --links 2 --delay-ms 30 [--loss 0.02]
                             [--duplicate 0.2] [--reorder 0.2 --reorder-ms 10] [--after 6] [--seed 1]
-                            [--answer-timesync]
+                            [--answer-timesync] [--swap-after 8]
 
 Link i relays ``127.0.0.1:<listen + i>`` (what the ground station talks to) to ``127.0.0.1:<target + i>`` (a
 simulated module from ``groundstation sim-peer``) and the replies back. Every packet, in either direction, is
@@ -11,8 +11,9 @@ delayed by ``--delay-ms``; lost with probability ``--loss``; sent twice with ``-
 seconds after the first packet (a link that degrades mid-flight). With ``--answer-timesync`` (MAVLink links) the
 relay, once its faults start, answers the ground station's ``TIMESYNC`` probes itself at once, on the module's
 clock as the module's newest ``ATTITUDE`` showed it, and keeps them from the module: a hostile relay hiding what it
-holds back. Runs until SIGTERM/SIGINT and then prints how many packets it relayed, dropped, duplicated, reordered
-and answered as one JSON line.
+holds back. With ``--swap-after`` the links trade places that long after the first packet: link i then reaches
+module i + 1 (the last, module 0), both ways. Runs until SIGTERM/SIGINT and then prints how many packets it
+relayed, dropped, duplicated, reordered and answered as one JSON line.
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ class Faults:
     """Faults start this long after the first packet, s."""
     answer_timesync: bool = False
     """Answer MAVLink ``TIMESYNC`` probes in the module's name (see the module docstring)."""
+    swap_after_s: float = float("inf")
+    """The links trade places this long after the first packet, s (see the module docstring)."""
 
 
 @dataclass
@@ -154,7 +157,8 @@ class UdpRelay:
                         s.sendto(forged, addr)
                         self.counts.answered += 1
                     else:
-                        self._schedule(now, self._back[i], data, self._targets[i])
+                        swapped = self._started is not None and now - self._started >= self.faults.swap_after_s
+                        self._schedule(now, self._back[i], data, self._targets[(i + swapped) % len(self._targets)])
                 else:
                     i = self._back.index(s)
                     if self._forgers:
@@ -187,10 +191,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--answer-timesync", action="store_true",
                     help="answer MAVLink TIMESYNC probes in the module's name, on its clock (a hostile relay)")
+    ap.add_argument("--swap-after", type=float, default=float("inf"),
+                    help="the links trade places this long after the first packet, s (link i reaches module i+1)")
     a = ap.parse_args(argv)
     relay = UdpRelay(a.listen, a.target, a.links,
                      Faults(a.delay_ms * 1e-3, a.loss, a.duplicate, a.reorder, a.reorder_ms * 1e-3, a.after,
-                            a.answer_timesync), a.seed)
+                            a.answer_timesync, a.swap_after), a.seed)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, relay.stop)
     c = relay.run()

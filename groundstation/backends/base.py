@@ -59,6 +59,9 @@ class Telemetry:
     """Per module, why it no longer flies ("" while it does): its firmware stopped flying it since arming
     (disarmed, locked, crashed, restarted, taking another sender's commands; latched for the rest of the flight),
     or it sends no state (while it is silent); empty when the backend cannot tell."""
+    rerouted: str = ""
+    """How the backend re-routed its links in flight, because one reached another module than its own ("" if it
+    never did): the links are not what preflight checked, so the flight lands."""
 
 
 def bounded_command(u: np.ndarray, u_max: float) -> np.ndarray:

@@ -79,6 +79,10 @@ overtaken on the link; farther, the module restarted its counts."""
 ECHO_WINDOW = 1000
 """A module flying on a command this backend sent is echoing one of its newest sequence numbers (4 s at 250 Hz);
 an echo outside them is another sender's command (its sequence numbers ahead of ours, so the module drops ours)."""
+IDENTITY_PERIOD_S = 0.05
+"""In flight each module is claimed again this often (the same session keeps its token; the answer names the
+module): a link that reaches another module than its own is found within a period of this and a round trip, s.
+Over the radio it is a packet every 12 commands at 250 Hz."""
 PREFLIGHT_EXCHANGE_S = 1.0
 """Preflight streams disarmed zeros this long and judges the loss over all of it (250 commands at 250 Hz: a link
 losing 2 % shows over 10 % with probability below 1e-9), s."""
@@ -255,6 +259,8 @@ class _Module:
         """Why the module stopped flying since arming ("" while it flies); latched."""
         self.identity: wire.Identity | None = None
         """The newest answer to a claim."""
+        self.uid = ""
+        """The unique id of the module this link reached at the end of preflight (hex; "" before)."""
         self.token = 0
         """The token the module gave this backend's session (0: not claimed)."""
         self.unknown = 0
@@ -312,6 +318,10 @@ class CrazyflieBackend(BackendBase):
         """When the links were last polled for states, s."""
         self.session = secrets.randbits(32) or 1
         """This backend's session id, claimed on every module (never 0)."""
+        self._identity_sent = -np.inf
+        """When the modules were last claimed in flight, s."""
+        self.rerouted = ""
+        """How the links were re-routed in flight ("" if never): a link reached another module than its own."""
         self._locks = LinkLocks(self.uris)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -348,6 +358,7 @@ class CrazyflieBackend(BackendBase):
             self._drain()
             if all(m.identity is not None for m in self._modules):
                 break  # every module answered (a refusal is final: the owner flies it)
+        self._distinct_tokens(deadline)
         issues = []
         for i, (uri, m) in enumerate(zip(self.uris, self._modules, strict=True)):
             ident = m.identity
@@ -372,6 +383,25 @@ class CrazyflieBackend(BackendBase):
                               f"(unique id {m.identity.uid_hex}): two links reach it")
         return issues
 
+    def _distinct_tokens(self, deadline: float) -> None:
+        """Modules claimed for this session whose tokens coincide are claimed again, by a throwaway session and then
+        by this one (each claim by a new owner moves the module's token on), until every module's token is its own:
+        a command sent down another module's link then carries a token that module drops. Fresh modules all give
+        token 1, and links swapped mid-flight by a relay had each module fly the other's commands (the V flipped;
+        hostile campaign 30)."""
+        taken: set[int] = set()
+        for m in self._modules:
+            while (m.identity is not None and m.identity.session == self.session and m.token in taken
+                   and self._clock() < deadline):
+                for session in (secrets.randbits(32) or 1, self.session):
+                    claim = CRTPPacket(wire.APP_HEADER, wire.Claim(session).pack())
+                    m.identity = None
+                    while (m.identity is None or m.identity.session != session) and self._clock() < deadline:
+                        m.sender.post(claim, True)
+                        time.sleep(self.settings.command_period)
+                        self._drain()
+            taken.add(m.token)
+
     def module_gravity(self) -> np.ndarray | None:
         """Per module, the direction of the specific force its accelerometer measured at the claim (module frame,
         unit; at rest: up), or None if a module has not answered."""
@@ -389,6 +419,8 @@ class CrazyflieBackend(BackendBase):
         meanwhile (nothing spins)."""
         if not self._modules:
             return PreflightReport(False, ("not connected",))
+        for m in self._modules:
+            m.uid = ""  # learnt afresh below
         claimed = self._claim()
         if claimed:
             return PreflightReport(False, tuple(claimed))
@@ -414,6 +446,8 @@ class CrazyflieBackend(BackendBase):
         # Ask again (the same session keeps its token): the identity's accelerometer reading is then the one at
         # the end of preflight, the assembly at rest where the flight's placement check compares it with mocap.
         issues = self._claim()
+        for m in self._modules:  # what each link reaches; in flight it must go on reaching it
+            m.uid = m.identity.uid_hex if m.identity is not None else ""
         for i, (uri, m) in enumerate(zip(self.uris, self._modules, strict=True)):
             name = f"module {i} ({uri})"
             if m.version is None and m.heard < since:
@@ -518,6 +552,11 @@ class CrazyflieBackend(BackendBase):
         if self._isolated:  # only after a module fault: nothing on the normal per-period path
             fractions[sorted(self._isolated)] = 0.0
         self._send_all(fractions, armed=self._armed)
+        if self._armed and self._clock() - self._identity_sent >= IDENTITY_PERIOD_S:
+            self._identity_sent = self._clock()
+            claim = CRTPPacket(wire.APP_HEADER, wire.Claim(self.session).pack())
+            for m in self._modules:
+                m.sender.post(claim, True)  # not in the command's slot: a newer command would supersede it
 
     def isolate(self, modules) -> bool:
         """Take faulty modules out of the flight: each gets the emergency stop (it locks until rebooted) and zero
@@ -564,7 +603,7 @@ class CrazyflieBackend(BackendBase):
                          module_gyro_ages_s=ages,
                          motors=(thrust / self.module.c_f).reshape(-1), battery_v=self._battery.copy(),
                          gyro=rates.mean(axis=0), module_gyros=rates, link_latency_s=quality.latency_s,
-                         link_loss=quality.loss, module_faults=faults)
+                         link_loss=quality.loss, module_faults=faults, rerouted=self.rerouted)
 
     def disarm(self) -> None:
         """End a flight normally: zero forces, disarmed, each supervisor asked to disarm and, before this returns,
@@ -695,7 +734,7 @@ class CrazyflieBackend(BackendBase):
                 data = bytes(pk.data)
                 if wire.same_port(pk.header, wire.APP_HEADER):
                     if data[:1] == bytes([wire.KIND_IDENTITY]):
-                        self._on_identity(m, data)
+                        self._on_identity(i, m, data)
                         continue
                     try:
                         st = wire.ModuleState.unpack(data)
@@ -711,13 +750,33 @@ class CrazyflieBackend(BackendBase):
             while m.samples and m.samples[0][0] < now - window:
                 m.samples.popleft()
 
-    def _on_identity(self, m: _Module, data: bytes) -> None:
+    def _on_identity(self, i: int, m: _Module, data: bytes) -> None:
         try:
-            m.identity = wire.Identity.unpack(data)
+            identity = wire.Identity.unpack(data)
         except ValueError:
             return
-        if m.identity.session == self.session:
-            m.token = m.identity.token
+        if m.uid and identity.uid_hex != m.uid:  # in flight, module i's link reached another module
+            self._reroute(i, identity.uid_hex)
+            return
+        m.identity = identity
+        if identity.session == self.session:
+            m.token = identity.token
+
+    def _reroute(self, i: int, uid: str) -> None:
+        """Module i's link answered with module j's unique id: the links of i and j trade places (a relay swapped
+        them), so each module's commands (with its own token, which the other drops meanwhile) reach it again and
+        its states are its own; said in :attr:`rerouted`, which lands the flight. A link reaching a module that is
+        no other's is left alone: it loses its module's commands (dropped by their token), and its silence or stale
+        echoes stop the flight."""
+        j = next((k for k, other in enumerate(self._modules) if other.uid == uid), None)
+        if j is None or j == i:
+            return
+        a, b = self._modules[i], self._modules[j]
+        a.driver, b.driver = b.driver, a.driver
+        a.sender, b.sender = b.sender, a.sender
+        a.receive, b.receive = b.receive, a.receive
+        note = f"module {i}'s link ({self.uris[i]}) reached module {j} ({uid}): links {i} and {j} re-routed"
+        self.rerouted = f"{self.rerouted}; {note}" if self.rerouted else note
 
     def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float, arrived: float) -> None:
         """``arrived``: when the state reached this machine (the kernel's stamp), or on a driver that does not say,

@@ -954,6 +954,8 @@ class Flight:
         are too slow even to land on."""
         p = self.policy
         lat, loss = telemetry.link_latency_s, telemetry.link_loss
+        if telemetry.rerouted:
+            return f"link degraded: {telemetry.rerouted}", False
         if lat.size and np.nanmax(lat, initial=0.0) > p.max_link_latency_s:
             i = int(np.nanargmax(lat))
             severe = lat[i] > p.link_stop_latency_s

@@ -187,3 +187,43 @@ def test_unopenable_link():
         CrazyflieBackend(["radio://0/80/2M/E7E7E7E701"], ASM.params, ASM.module_rotations[:1]).connect()
     with pytest.raises(ValueError, match="2 links for 1 modules"):
         CrazyflieBackend(["udp://127.0.0.1:1", "udp://127.0.0.1:2"], ASM.params, ASM.module_rotations[:1])
+
+
+def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed():
+    """Fresh modules all give token 1: preflight claims again until each module's token is its own, so a command
+    down the wrong link is dropped. A relay that swaps the two links in flight (both ways): the next claim's answer
+    names the other module, the links trade places and each module flies its own commands again; said in the
+    telemetry (the flight lands on it)."""
+    import threading
+
+    from sim.udp_relay import Faults, UdpRelay
+
+    peer, th = start_peer(19760, 7502)
+    relay = UdpRelay(19764, 19760, 2, Faults(swap_after_s=3.0))
+    relay_th = threading.Thread(target=relay.run, daemon=True)
+    relay_th.start()
+    try:
+        with backend(19764) as be:
+            assert be.preflight().ok
+            tokens = [peer.firmware(i).app.owner_token for i in range(2)]
+            assert tokens[0] != tokens[1] and all(tokens), tokens
+            be.arm()
+            u = np.array([0.2] * 4 + [0.4] * 4) * U_MAX  # each module's own command
+            hold(be, u, 0.2)
+            assert be.telemetry().rerouted == ""
+            applied = [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
+            deadline = time.monotonic() + 6.0  # the swap comes 3 s after the first packet
+            while not be.telemetry().rerouted and time.monotonic() < deadline:
+                hold(be, u, 0.05)
+            assert be.telemetry().rerouted == (
+                "module 0's link (udp://127.0.0.1:19764) reached module 1 "
+                f"({be.module_ids()[1]}): links 0 and 1 re-routed"), be.telemetry().rerouted
+            hold(be, u, 0.2)
+            now = [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
+            assert np.allclose(now, applied) and not np.allclose(now[0], now[1])  # each its own again
+            assert be.telemetry().link_ok and be.telemetry().module_faults == ("", "")
+            be.disarm()
+    finally:
+        relay.stop()
+        relay_th.join(2)
+        stop_peer(peer, th)

@@ -116,6 +116,15 @@ def f_px4_relay_answering_timesync_for_the_module(cli, tmp_path):
     _landed_on_a_bad_link(tmp_path, "mavlink", 2, max_tilt_deg=35.0, delay_ms=10, answer_timesync=True)
 
 
+@link_or_load("crazyflie: a relay swaps the two modules' links (both ways) in flight",
+              "the next claim's answer names the other module (its unique id, within ~50 ms): the links re-routed, "
+              "each module its own commands again, a landing, upright, exit 1 (before: fresh modules shared token 1 "
+              "and each flew the other's commands: the V flipped, 172 deg)")
+def f_crazyflie_links_swapped_in_flight(cli, tmp_path):
+    # Measured: 13 deg (the modules hold their last command, the other's dropped by its token, until re-routed).
+    _landed_on_a_bad_link(tmp_path, "crazyflie", 2, max_tilt_deg=30.0, named="re-routed", swap_after=6.0)
+
+
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
 def test_fault(row, cli, tmp_path):
     row.run(cli, tmp_path)
