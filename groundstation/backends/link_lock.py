@@ -12,11 +12,38 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import ipaddress
 import os
+import re
 import tempfile
 from pathlib import Path
 
 from groundstation.errors import LinkError
+
+_NETWORK = re.compile(r"^(?:udp|udpin|udpout|udpbcast|tcp|tcpin)(?::|://)(?:\[(?P<v6>[^\]]*)\]|(?P<host>[^:/]*)):"
+                      r"(?P<port>\d+)")
+_RADIO = re.compile(r"^radio://[^/]*/(?P<channel>\d+)(?:/[^/]*(?:/(?P<address>[0-9a-f]+))?)?")
+
+
+def link_key(uri: str) -> str:
+    """What a link reaches, however it is spelled: ``udp://localhost:19850/1`` and ``UDP://127.0.0.1:19850`` are one
+    module (a second flight spelling its links another way passed the lock: hostile campaign 30); a radio link is
+    its channel and address, whichever dongle carries it; a serial device its real path."""
+    raw = uri.strip()
+    u = raw.lower()
+    if m := _RADIO.match(u):
+        return f"radio:{int(m['channel'])}:{(m['address'] or 'e7e7e7e7e7').lstrip('0') or '0'}"
+    if m := _NETWORK.match(u):
+        host = m["v6"] if m["v6"] is not None else m["host"]
+        if host in ("localhost", "") or host.startswith("localhost."):
+            host = "127.0.0.1"
+        with contextlib.suppress(ValueError):
+            host = str(ipaddress.ip_address(host))
+        return f"ip:{host}:{int(m['port'])}"
+    device = raw.split(",")[0].split(":")[0]
+    if device.startswith("/"):
+        return f"serial:{os.path.realpath(device)}"
+    return u
 
 
 def lock_dir() -> Path:
@@ -34,13 +61,16 @@ class LinkLocks:
 
     @staticmethod
     def _path(uri: str) -> Path:
-        return lock_dir() / (hashlib.sha256(uri.strip().lower().encode()).hexdigest()[:32] + ".lock")
+        return lock_dir() / (hashlib.sha256(link_key(uri).encode()).hexdigest()[:32] + ".lock")
 
     def acquire(self) -> None:
         """Take every link's lock; raises :class:`LinkError` naming the link and the holder's pid if one is held."""
         lock_dir().mkdir(mode=0o700, parents=True, exist_ok=True)
         try:
-            for uri in dict.fromkeys(self.uris):  # a link listed twice is the preflight's business, not a lock's
+            first: dict[str, str] = {}  # a link listed twice (however spelled) is the preflight's business
+            for uri in self.uris:
+                first.setdefault(link_key(uri), uri)
+            for uri in first.values():
                 fh = open(self._path(uri), "a+")  # noqa: SIM115 - held open while the link is in use
                 try:
                     fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)

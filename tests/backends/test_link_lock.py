@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from groundstation.backends.link_lock import LinkLocks, lock_dir
+from groundstation.backends.link_lock import LinkLocks, link_key, lock_dir
 from groundstation.backends.mavlink import MavlinkBackend
 from groundstation.errors import LinkError
 from sim.mavlink_peer import SimulatedPx4
@@ -45,6 +45,25 @@ def test_a_link_another_process_holds_is_refused_naming_it_and_the_holder():
     locks.acquire()  # released when its holder exited
     locks.release()
     assert lock_dir().stat().st_mode & 0o777 == 0o700  # per user: no other account can hold or fake a lock
+
+
+def test_a_link_spelled_another_way_is_the_same_link():
+    """A second flight naming the held modules by another spelling of their links is refused (it passed before,
+    and only the modules' own checks kept it off: hostile campaign 30)."""
+    for spellings in (["udp://127.0.0.1:19852", "udp://localhost:19852/1", " UDP://127.0.0.1:19852/"],
+                      ["udpout:127.0.0.1:14590", "udpout:localhost:14590", "tcp:127.0.0.1:14590"],
+                      ["tcp:[::1]:5760", "tcp:[0:0::1]:5760"],
+                      ["radio://0/80/2M/E7E7E7E7E7", "radio://1/80/2M", "radio://0/80/250K/00E7E7E7E7E7"]):
+        assert len({link_key(u) for u in spellings}) == 1, spellings
+    assert link_key("radio://0/80/2M/E7E7E7E7E8") != link_key("radio://0/80/2M/E7E7E7E7E7")
+    assert link_key("udp://127.0.0.1:19852") != link_key("udp://127.0.0.1:19853")
+    assert link_key("/dev/ttyACM0:57600") == "serial:/dev/ttyACM0"  # a device's name keeps its case
+    holder = _holder("udp://127.0.0.1:19852")
+    try:
+        with pytest.raises(LinkError, match="is in use by another flight on this host"):
+            LinkLocks(["udp://localhost:19852/1"]).acquire()
+    finally:
+        holder.communicate("")
 
 
 def test_links_are_taken_all_or_none():
