@@ -44,6 +44,7 @@ from mcap.records import (
     Attachment,
     Channel,
     Chunk,
+    ChunkIndex,
     DataEnd,
     Header,
     McapRecord,
@@ -84,12 +85,12 @@ WARNING_LINES = 10
 _READERS: dict[int, Callable[[ReadDataStream], McapRecord]] = {
     Opcode.HEADER: Header.read, Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read,
     Opcode.MESSAGE_INDEX: MessageIndex.read, Opcode.METADATA: Metadata.read, Opcode.ATTACHMENT: Attachment.read,
-    Opcode.DATA_END: DataEnd.read, Opcode.STATISTICS: Statistics.read}
+    Opcode.DATA_END: DataEnd.read, Opcode.STATISTICS: Statistics.read, Opcode.CHUNK_INDEX: ChunkIndex.read}
 DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.CHUNK,
                           Opcode.MESSAGE_INDEX, Opcode.METADATA, Opcode.ATTACHMENT, Opcode.DATA_END})
 """The records of a data section; any other opcode there is damage."""
-_SUMMARY_OPCODES = frozenset({Opcode.SCHEMA, Opcode.CHANNEL, Opcode.STATISTICS})
-"""The summary records the scan uses: the channel table and the message count."""
+_SUMMARY_OPCODES = frozenset({Opcode.SCHEMA, Opcode.CHANNEL, Opcode.STATISTICS, Opcode.CHUNK_INDEX})
+"""The summary records the scan uses: the channel table, the message count and where each chunk is."""
 
 REASONS = {
     "crc": "CRC mismatch",
@@ -97,6 +98,9 @@ REASONS = {
     "unreadable": "no readable record",
     "truncated": "the file ends inside a record (cut short)",
     "no channel": "their channel record was in a damaged chunk",
+    "not listed": "an intact chunk the summary does not list (spliced in from another file): not this flight's",
+    "copy": "an intact chunk that repeats one read before (a duplicate): read once",
+    "moved": "an intact chunk of this flight out of its place (the summary lists it elsewhere): read",
     "summary": "the summary section or footer is damaged or missing; not used, the data section was read",
     "data crc": "the data section's CRC does not match though every chunk's does: a record outside the chunks "
                 "(metadata, an index) is damaged",
@@ -139,7 +143,7 @@ class Damage:
         if self.reason == "no channel":
             return f"{self.messages} messages on {', '.join(sorted(self.lost))} skipped: {REASONS[self.reason]}"
         where = f"bytes {self.span[0]}-{self.span[1]}"
-        if self.reason in ("summary", "data crc"):
+        if self.reason in ("summary", "data crc", "moved"):
             return f"{where}: {REASONS[self.reason]}"
         if self.reason in ("metadata", "record"):
             return f"{where}: {self.note}: skipped"
@@ -159,6 +163,8 @@ class _Summary:
     """The file's message count (None without a Statistics record)."""
     data_end: int
     """Where the data section ends (the Data End record's end)."""
+    chunks: dict[int, tuple[int, int, int]]
+    """Each chunk's offset -> (record length, first and last message time), from its index."""
 
 
 class LogScan:
@@ -179,6 +185,11 @@ class LogScan:
         self._expected: int | None = None
         self._topics: dict[int, str] = {}
         self._orphans: Counter[str] = Counter()
+        self._chunk_index: dict[int, tuple[int, int, int]] = {}
+        """An intact summary's chunk index (see :class:`_Summary`); empty without one."""
+        self._listed: set[tuple[int, int, int]] = set()
+        self._seen_chunks: set = set()
+        """Every chunk read so far: its index key and CRC."""
 
     def records(self) -> Iterator[McapRecord]:
         """Schema, Channel, Metadata, Attachment and Message records in file order (an intact summary's schemas
@@ -234,6 +245,8 @@ class LogScan:
         end = self._size
         if summary is not None:
             self._expected, end = summary.messages, summary.data_end
+            self._chunk_index = summary.chunks
+            self._listed = set(summary.chunks.values())
             yield from self._handed_out(summary.records)
         pos, crc, ended = len(MAGIC), zlib.crc32(MAGIC), False
         while pos < end and not ended:
@@ -248,6 +261,16 @@ class LogScan:
                     resume, _, reason, note = resync
                     self.damage.append(Damage(reason, (pos, resume), 0, {}, note))
                     pos = resume
+                continue
+            placed = self._misplaced(pos, raw, found) if opcode == Opcode.CHUNK else None
+            if placed == "moved":
+                self.damage.append(Damage(placed, (pos, pos + len(raw)), 0, {}))  # read: the file is damaged, not
+                # what it holds
+            elif placed is not None:
+                # A duplicate was read twice and a chunk of another flight as this one's, each "intact" (hostile
+                # campaign 30); their messages are not lost, they were never this flight's record.
+                self.damage.append(Damage(placed, (pos, pos + len(raw)), 1, {}))
+                pos += len(raw)
                 continue
             if opcode == Opcode.METADATA and (why := _metadata_fault(found[0])) is not None:
                 self.damage.append(Damage("metadata", (pos, pos + len(raw)), 0, {},
@@ -281,6 +304,21 @@ class LogScan:
                 self.messages += 1
             yield rec
 
+    def _misplaced(self, pos: int, raw: bytes, found: list[McapRecord]) -> str | None:
+        """None for a sound chunk (``raw``, its records ``found``) where it was written; else a key of
+        :data:`REASONS`: ``copy`` (it repeats one read before), ``not listed`` (an intact summary does not list
+        it), ``moved`` (it lists it elsewhere). Its message times are taken from its messages: its header's copy
+        of them is under no CRC, and damage there is not a chunk of another file."""
+        times = [r.log_time for r in found if isinstance(r, Message)]
+        key = (len(raw), min(times, default=0), max(times, default=0))
+        whole = (key, raw[_RECORD.size + 24:_RECORD.size + 28])  # and its uncompressed CRC
+        if whole in self._seen_chunks:
+            return "copy"
+        self._seen_chunks.add(whole)
+        if not self._chunk_index or self._chunk_index.get(pos) == key:
+            return None
+        return "moved" if key in self._listed else "not listed"
+
     def _check_data_crc(self, data_end: DataEnd, crc: int, pos: int) -> None:
         """Damage no chunk CRC covers (the header, metadata, message indexes) shows only here; 0 means the writer
         computed no CRC (logs written before this program set ``enable_data_crcs``)."""
@@ -299,8 +337,14 @@ class LogScan:
         return resume
 
     def _tally(self, fh: BinaryIO, start: int, stop: int) -> tuple[int, dict[str, int] | None]:
-        """The chunks between ``start`` and ``stop`` and, from the message indexes written after them, the messages
-        they held per topic; None for the messages as soon as a record there does not parse."""
+        """The chunks between ``start`` and ``stop`` (from an intact summary's chunk index, else those whose records
+        can be walked from ``start``) and, from the message indexes written after them, the messages they held per
+        topic; None for the messages as soon as a record there does not parse."""
+        listed = sum(start <= at < stop for at in self._chunk_index)
+        chunks, lost = self._walk(fh, start, stop)
+        return (listed, lost) if self._chunk_index else (chunks, lost)
+
+    def _walk(self, fh: BinaryIO, start: int, stop: int) -> tuple[int, dict[str, int] | None]:
         lost: Counter[str] = Counter()
         chunks, pos = 0, start
         while pos < stop:
@@ -559,7 +603,10 @@ def _summary(fh: BinaryIO, size: int) -> _Summary | None:
     except _Bad:
         return None
     messages = [r.message_count for r in found if isinstance(r, Statistics)]
-    return _Summary([r for r in found if not isinstance(r, Statistics)], messages[0] if messages else None, data_end)
+    chunks = {r.chunk_start_offset: (r.chunk_length, r.message_start_time, r.message_end_time)
+              for r in found if isinstance(r, ChunkIndex)}
+    return _Summary([r for r in found if not isinstance(r, Statistics | ChunkIndex)],
+                    messages[0] if messages else None, data_end, chunks)
 
 
 def _split(body: bytes) -> Iterator[tuple[int, bytes]]:

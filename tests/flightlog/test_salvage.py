@@ -165,3 +165,89 @@ def test_recover_never_overwrites_its_source_or_another_file_and_a_foreign_file_
     with pytest.raises(UsageError, match="good.mcap: the file exists; a log is never overwritten"):
         recover(log, good)
     assert good.read_bytes() == flight_log().read_bytes()
+
+
+def test_a_zeroed_stretch_counts_every_chunk_the_summary_lists_there(tmp_path):
+    """64 kB zeroed over five chunks: the stretch is one, and it counts the five (it said one: only the first
+    could be walked; hostile campaign 30)."""
+    log = flight_log()
+    cs = chunks_of(log)
+    k = len(cs) // 2
+    start, end = middle_of(cs[k]), middle_of(cs[k + 4])
+    data = bytearray(log.read_bytes())
+    data[start:end] = bytes(end - start)
+    bad = tmp_path / "zeroed.mcap"
+    bad.write_bytes(bytes(data))
+    s, _ = scan(bad)
+    [d] = s.damage
+    assert d.span == (cs[k].start, cs[k + 5].start) and d.chunks == 5 and s.chunks == len(cs) - 5
+    assert s.messages == total_messages(log) - sum(sum(c.topics.values()) for c in cs[k:k + 5])
+
+
+def test_a_repeated_chunk_is_read_once(tmp_path):
+    """A copy of a chunk put after it (the file's offsets shift: the summary no longer fits): read once, named
+    (it was read twice: its periods and events counted twice)."""
+    log = flight_log()
+    cs = chunks_of(log)
+    c, after = cs[len(cs) // 2], cs[len(cs) // 2 + 1]
+    data = log.read_bytes()
+    bad = tmp_path / "repeated.mcap"
+    bad.write_bytes(data[:after.start] + data[c.start:c.end] + data[after.start:])
+    s, read = scan(bad)
+    assert s.messages == sum(read.values()) == total_messages(log) and not s.complete
+    copies = [d for d in s.damage if d.reason == "copy"]
+    assert [(d.span, d.chunks) for d in copies] == [((after.start, after.start + c.end - c.start), 1)]
+
+
+def test_two_chunks_that_traded_places_are_read_and_named(tmp_path):
+    """Both chunks are this flight's (the summary lists them, elsewhere): every message read, the file named
+    damaged."""
+    log = flight_log()
+    cs = chunks_of(log)
+    a, b = cs[len(cs) // 2], cs[len(cs) // 2 + 1]
+    data = log.read_bytes()
+    between = data[a.end:b.start]  # a's message indexes
+    bad = tmp_path / "traded.mcap"
+    bad.write_bytes(data[:a.start] + data[b.start:b.end] + between + data[a.start:a.end] + data[b.end:])
+    s, read = scan(bad)
+    assert s.messages == sum(read.values()) == total_messages(log) and not s.complete
+    assert [d.reason for d in s.damage] == ["moved", "moved"] and s.dropped()["chunks"] == 0
+
+
+def _written(path, t0: int) -> None:
+    """An MCAP file of 200 alike messages from ``t0`` (ns), uncompressed: two such files have their chunks at the
+    same offsets, of the same lengths."""
+    from mcap.writer import CompressionType, Writer
+
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=2000, compression=CompressionType.NONE)
+        w.start()
+        schema = w.register_schema("x", "jsonschema", b"{}")
+        channel = w.register_channel("/x", "json", schema)
+        for i in range(200):
+            w.add_message(channel, log_time=t0 + i * 10**6, data=b'{"i": %03d}' % i, publish_time=t0 + i * 10**6)
+        w.finish()
+
+
+def test_a_chunk_of_another_file_in_its_place_is_not_this_files(tmp_path):
+    """A sound chunk (its CRC matches) of another recording, spliced in where one of this file's was: not read as
+    this one's (it was, "0 chunks skipped"), its place's messages counted lost."""
+    ours, theirs = tmp_path / "ours.mcap", tmp_path / "theirs.mcap"
+    _written(ours, 10**18)
+    _written(theirs, 2 * 10**18)
+    with open(ours, "rb") as fh:
+        index = sorted(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    third = index[2]
+    span = slice(third.chunk_start_offset, third.chunk_start_offset + third.chunk_length)
+    data = bytearray(ours.read_bytes())
+    data[span] = theirs.read_bytes()[span]
+    spliced = tmp_path / "spliced.mcap"
+    spliced.write_bytes(bytes(data))
+    s, read = scan(spliced)
+    [d] = s.damage
+    assert d.reason == "not listed" and d.span == (span.start, span.stop) and d.chunks == 1
+    with open(ours, "rb") as fh:  # the messages the third chunk held, by their times
+        held = sum(third.message_start_time <= m.log_time <= third.message_end_time
+                   for _, _, m in make_reader(fh).iter_messages())
+    assert 0 < held < 200 and s.messages == sum(read.values()) == 200 - held and s.messages_lost == held
+    assert not s.complete
