@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> None:
     # A command may leave handlers for the process's end (``fly``: a signal after the flight ends the process with
     # its status); called in-process (``argv`` given: a test, a script), the caller's are put back.
     handlers = {s: signal.getsignal(s) for s in signal.valid_signals()} if argv is not None else {}
+    _terminate_as_interrupt()
     try:
         rv = _run(argv)
     finally:
@@ -83,6 +84,41 @@ def main(argv: list[str] | None = None) -> None:
     sys.exit(rv)
 
 
+ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+_ended_by: list[int] = []
+"""The ending signal that interrupted the command, if one did."""
+
+
+def _terminate_as_interrupt() -> None:
+    """SIGTERM and a hang-up end a command as Ctrl-C does, unless ignored (``nohup``): its work stops where it
+    is interruptible, what it was writing is removed or finalized, worker processes end with it, and the exit
+    status says which signal (128 + its number). By default they killed the process where it stood: ``log
+    recover`` left a partial copy that its retry then refused to overwrite, and ``design`` left a worker running
+    (hostile campaign 30). ``fly`` puts its own handlers over these (it lands)."""
+
+    def handler(signum, frame):
+        _ended_by.append(signum)
+        interrupt = signal.getsignal(signal.SIGINT)
+        if callable(interrupt):  # Python's (raises KeyboardInterrupt) or a solver's (sets its stop flag)
+            interrupt(signal.SIGINT, frame)
+        else:  # Ctrl-C ignored (a background job of a script): the signal still ends the command
+            raise KeyboardInterrupt
+
+    for s in ENDING_SIGNALS:
+        if signal.getsignal(s) == signal.SIG_DFL:
+            signal.signal(s, handler)
+
+
+def _interrupted() -> int:
+    """Say the command was interrupted (by which signal, if not Ctrl-C); its exit status."""
+    if _ended_by:
+        signum = _ended_by[-1]
+        click.echo(f"groundstation: interrupted ({signal.Signals(signum).name})", err=True)
+        return 128 + signum
+    click.echo("groundstation: interrupted", err=True)
+    return EXIT_INTERRUPTED
+
+
 def _run(argv: list[str] | None) -> int:
     """The command's exit status."""
     try:
@@ -98,12 +134,8 @@ def _run(argv: list[str] | None) -> int:
         hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx and exc.ctx.parent else ""  # 'log recover' too
         click.echo(f"groundstation: error: {exc.format_message()}{hint}", err=True)
         return EXIT_BAD_INPUT
-    except click.exceptions.Abort:
-        click.echo("groundstation: interrupted", err=True)
-        return EXIT_INTERRUPTED
-    except KeyboardInterrupt:
-        click.echo("groundstation: interrupted", err=True)
-        return EXIT_INTERRUPTED
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        return _interrupted()
     except BackendError as exc:
         click.echo(f"groundstation: error: {exc}", err=True)
         return EXIT_FAILED

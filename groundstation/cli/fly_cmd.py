@@ -63,6 +63,14 @@ def fly_command(flight: str, duration: float | None, log: str | None, as_json: b
     from groundstation.runtime.fly import fly
 
     log_path = writable_output(log, (".mcap",)) if log else None
+    if live_port is not None:  # served from the writer process later, where a port in use was only a log event
+        from groundstation.errors import SessionError
+        from groundstation.mocap.zenoh_link import check_listenable
+
+        try:
+            check_listenable(f"tcp/127.0.0.1:{live_port}")
+        except SessionError as exc:
+            raise click.UsageError(f"--live {live_port}: {exc}") from None
     console = stderr_console()
     requests = Requests()
     # The status line is drawn by a thread of ours between control periods (LoopActivity), not by rich's

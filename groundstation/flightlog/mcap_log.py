@@ -196,11 +196,17 @@ def being_written(path: str | Path) -> bool:
     return False
 
 
-def claim(path: str | Path) -> None:
+def claim(path: str | Path) -> tuple[int, int]:
     """Create ``path`` empty, exclusively (``O_EXCL``): of two processes claiming one path only one succeeds, the
     other gets :class:`FileExistsError`; an existing file is never touched. The writer then opens the claimed file
-    (it writes only into an empty one)."""
-    os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644))
+    (it writes only into an empty one). Returns the file's identity (device, inode): the path may lead elsewhere
+    later (the file removed and another put in its place)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+    try:
+        st = os.fstat(fd)
+    finally:
+        os.close(fd)
+    return st.st_dev, st.st_ino
 
 
 WRITER_STALL_S = 2.0
@@ -807,6 +813,9 @@ def _mcap_writer(fh) -> Writer:
     return Writer(fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD, enable_data_crcs=True)
 
 
+SOURCE_LIVE = ("its flight is still writing it: the copy holds what was on disk when it was read, not the flight's "
+               "end")
+"""`recover`'s word on a source a log writer still holds."""
 RECOVERED = "recovered"
 """Metadata record :func:`recover` adds to its copy: a JSON object with the source's path, whether it was complete
 and the warnings naming what was dropped (the reader repeats them)."""
@@ -824,6 +833,7 @@ def recover(src: str | Path, dst: str | Path) -> dict:
     if Path(dst).exists() and os.path.samefile(src, dst):
         raise UsageError(f"{dst}: is the log to recover; write the recovered copy to another file")
     scan = LogScan(src)
+    live = being_written(src)  # a flight still writing it: the copy is what was on disk now, not where it ended
     schemas: dict[int, int] = {}
     channels: dict[int, int] = {}
     kept = 0
@@ -851,6 +861,7 @@ def recover(src: str | Path, dst: str | Path) -> dict:
             # What the copy is and what it lost, in the copy itself: without it a recovered log whose config record
             # was dropped read back as a complete flight with no word of the damage (only recover's output said so).
             w.add_metadata(RECOVERED, {"value": json.dumps({"source": str(src), "source_was_complete": scan.complete,
+                                                            "source_being_written": live,
                                                             "warnings": scan.warnings()})})
             w.finish()
     except BaseException:
@@ -859,8 +870,9 @@ def recover(src: str | Path, dst: str | Path) -> dict:
         with contextlib.suppress(OSError):
             os.unlink(dst)
         raise
+    warnings = scan.warnings() + ([SOURCE_LIVE] if live else [])
     return {"messages": kept, "channels": len(channels), "chunks": scan.chunks, "source_was_complete": scan.complete,
-            "dropped": scan.dropped(), "warnings": scan.warnings()}
+            "source_being_written": live, "dropped": scan.dropped(), "warnings": warnings}
 
 
 if __name__ == "__main__":

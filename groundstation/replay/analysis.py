@@ -37,6 +37,9 @@ NO_END = ("the log has no end of flight: its flight process stopped before finis
 STILL_WRITTEN = ("the log has no end of flight yet: its writer is still writing it (the flight under way, or its "
                  "writer hung)")
 """...while a log writer process still holds the file (:func:`~groundstation.flightlog.mcap_log.being_written`)."""
+COPIED_LIVE = ("the log has no end of flight: it is a `log recover` copy taken while its flight was still under way "
+               "(the source holds the rest)")
+"""...of a copy of a log its writer still held (:attr:`~groundstation.replay.reader.LogFile.copied_live`)."""
 SERIES_POINTS = 20_000
 """Most points kept per time series (a 30-minute 500 Hz flight has 900,000 periods)."""
 RATE_MIN_SPAN_S = 0.5
@@ -537,7 +540,8 @@ def analyse(path: str | Path, t_from: float | None = None, t_to: float | None = 
         **{f"mocap_{k}": None if counts is None else counts[k] for k in MOCAP_COUNTS},
         duration_s=duration, tracked_s=track_last - track_first if track_first is not None else 0.0,
         phase=summary.get("phase", last_phase),
-        reason=summary.get("reason", "") if summary else STILL_WRITTEN if being_written(src) else NO_END,
+        reason=summary.get("reason", "") if summary else STILL_WRITTEN if being_written(src) else
+        COPIED_LIVE if log.copied_live else NO_END,
         stalls=sum("loop stalled" in text for _, _, text in events), **modules.result(), **estimates.result(windowed))
     rows = series.rows
     s = Series(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),

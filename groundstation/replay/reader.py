@@ -52,6 +52,9 @@ class LogFile:
     """What reading skipped, one line per damaged stretch and a line of totals (empty for an intact log)."""
     skipped: str = ""
     """The line of totals of what reading skipped as damaged (empty when nothing was)."""
+    copied_live: bool = False
+    """A `log recover` copy of a log its flight was still writing: it has no end because the flight had not ended
+    (known once :meth:`records` has been read through)."""
 
     def records(self, topics: set[str] | None = None, progress=None) -> Iterator[LogRecord]:
         """Every intact message of ``topics`` (all if None), in file order (log time order); ``progress(fraction)``
@@ -70,6 +73,8 @@ class LogFile:
                 self.metadata[rec.name] = dict(rec.metadata).get("value", "")
                 if rec.name == RECOVERED:  # one per recovery (a recovered log recovered again has two)
                     recovered += _recovered_from(self.metadata[rec.name])
+                    self.copied_live = self.copied_live or \
+                        json.loads(self.metadata[rec.name]).get("source_being_written") is True
             elif isinstance(rec, Message):
                 ch = channels[rec.channel_id]  # the scan hands out no message before its channel
                 if topics is None or ch.topic in topics:
@@ -93,6 +98,10 @@ def _recovered_from(value: str) -> list[str]:
     source = record.get("source", "?")
     if record.get("source_was_complete") is True:
         return []
+    if record.get("source_being_written") is True:  # its flight went on: the source has the rest
+        return [f"recovered by `log recover` from {source} while its flight was still writing it: {source} holds "
+                f"the rest of the flight"] + [f"recovered by `log recover` from {source}, which lost: {w}"
+                                             for w in record.get("warnings", [])]
     lost = [str(w) for w in record.get("warnings", [])] or ["cut short (not finalized)"]
     return [f"recovered by `log recover` from {source}, which lost: {w}" for w in lost]
 

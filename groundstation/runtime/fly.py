@@ -276,6 +276,8 @@ class _Prepared:
     """Zenoh key of the body's pose."""
     security: Security | None
     log_file: Path
+    log_id: tuple[int, int]
+    """The claimed log file's (device, inode): at the end the path must still lead to it."""
     mac_key: MocapKey | None = None
     """The mocap key (``mocap.key_file``): the subscriber uses no sample without its MAC."""
 
@@ -320,15 +322,15 @@ def prepare(config_path: str | Path, duration: float | None = None, log_path: st
     for issue_key, issue in load(kind.config_issues)(cfg, assembly) if kind.config_issues else ():
         raise ConfigError(issue, path=src, key=issue_key)
     mac_key = mocap_mac_key(cfg.mocap, base, src)
-    log_file = _claim_log(log_path, base, cfg, src)
-    return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file, mac_key)
+    log_file, log_id = _claim_log(log_path, base, cfg, src)
+    return _Prepared(cfg, base, src, assembly, kind, track, plan, volume, key, security, log_file, log_id, mac_key)
 
 
 AUTO_NAMES = 1000
 """Most logs one log directory takes in one second (``flight-<date>-<time>[-k].mcap``)."""
 
 
-def _claim_log(log_path: str | Path | None, base: Path, cfg: FlightConfig, src: str) -> Path:
+def _claim_log(log_path: str | Path | None, base: Path, cfg: FlightConfig, src: str) -> tuple[Path, tuple[int, int]]:
     """Claim the flight's log file: created empty and exclusively, so a log is never overwritten and of two flights
     given one ``--log`` only one gets it. ``--log`` naming a file that exists is refused; in the config's
     ``log_dir`` (not looked at with ``--log``) a name taken (two flights in one second) gets the next free ``-k``."""
@@ -336,12 +338,12 @@ def _claim_log(log_path: str | Path | None, base: Path, cfg: FlightConfig, src: 
         path = Path(log_path)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            claim(path)
+            identity = claim(path)
         except FileExistsError:
             raise UsageError(f"--log {path}: the file exists; a flight log is never overwritten") from None
         except OSError as exc:
             raise ConfigError(f"the log file cannot be written: {exc}", path=src, key="--log") from None
-        return path
+        return path, identity
     stamp = time.strftime("flight-%Y%m%d-%H%M%S")
     log_dir = log_directory(cfg, base, src)
     try:
@@ -349,8 +351,7 @@ def _claim_log(log_path: str | Path | None, base: Path, cfg: FlightConfig, src: 
         for k in range(AUTO_NAMES):
             path = log_dir / (f"{stamp}-{k}.mcap" if k else f"{stamp}.mcap")
             with contextlib.suppress(FileExistsError):
-                claim(path)
-                return path
+                return path, claim(path)
     except OSError as exc:
         raise ConfigError(f"log directory cannot be written: {exc}", path=src, key="log_dir") from None
     raise ConfigError(f"{AUTO_NAMES} logs named {stamp}* exist already", path=src, key="log_dir")
@@ -488,7 +489,10 @@ def _fly(config_path, duration, log_path, requests: Requests, faults: Faults, on
         raise
     log_error = log.error
     try:
-        p.log_file.lstat()
+        st = p.log_file.lstat()
+        if (st.st_dev, st.st_ino) != p.log_id:  # another file in its place: that one is not this flight's log
+            log_error = log_error or (f"{p.log_file} is another file now: this flight's log was removed or replaced "
+                                      f"during the flight")
     except FileNotFoundError:  # the writer wrote to a file no path leads to now
         log_error = log_error or f"{p.log_file} is gone: it, or its directory, was removed or renamed during the flight"
     except OSError:  # cannot tell (a directory made unreadable, a stale NFS handle): not a verdict

@@ -295,6 +295,24 @@ def f_absurd_log_dir_in_a_symlink_loop(cli, tmp_path):
     _refused(cli, ("params", str(modules)), str(modules), "log_dir", "log directory cannot be resolved")
 
 
+@bad_input("fly --live on a port another process listens on",
+           "exit 2 naming --live and the port, before anything opens (before: the operator was told to connect to "
+           "it, the live view's failure only a warning inside the log, exit 0: their Foxglove reached the other "
+           "process)")
+def f_absurd_live_port_in_use(cli, tmp_path):
+    import socket
+
+    with socket.socket() as other:
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        port = other.getsockname()[1]
+        if port < 1024:
+            pytest.skip("the kernel gave a port below --live's range")
+        log = tmp_path / "x.mcap"
+        _refused(cli, ("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7496")), "--live", str(port),
+                       "--log", str(log)), f"--live {port}: cannot listen on tcp/127.0.0.1:{port}", log=log)
+
+
 @bad_input("fly with a named pipe (FIFO) nobody writes to as the flight config",
            "exit 2 naming the file: not a regular file (before: the open blocked for good, the first Ctrl-C "
            "swallowed)")

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import pytest
 
-from groundstation.flightlog.mcap_log import WRITER_STALL_S
-from groundstation.replay.analysis import NO_END, STILL_WRITTEN, analyse
+from groundstation.flightlog.mcap_log import SOURCE_LIVE, WRITER_STALL_S
+from groundstation.replay.analysis import COPIED_LIVE, NO_END, STILL_WRITTEN, analyse
 from groundstation.replay.reader import open_log
 from groundstation.runtime.fly import Faults, fly
 from tests.faults.table import Fault, process_fault, rows
@@ -413,18 +413,25 @@ def f_signals_after_the_flight(cli, tmp_path):
     assert json.loads(out)["phase"] == "done" and "Traceback" not in err
 
 
-@process_fault("replay of a log while its flight is under way",
-               "the reason says its writer is still writing it (not that its flight process died); not complete")
+@process_fault("replay and `log recover` of a log while its flight is under way",
+               "replay: its writer is still writing it (not that its flight process died); recover warns that the "
+               "copy is what was on disk then, and the copy's replay says it was taken mid-flight (before: it said "
+               "the flight process had died); neither complete")
 def f_replay_during_the_flight(cli, tmp_path):
-    log = tmp_path / "live.mcap"
+    log, copy = tmp_path / "live.mcap", tmp_path / "copy.mcap"
     proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), log)
     try:
         _wait_until(lambda: _airborne(log), proc, "airborne")
         r = _replayed(cli, log)
+        code, out, err = cli("log", "recover", str(log), str(copy))
     finally:
         proc.kill()
         proc.wait(30)
     assert not r["complete"] and r["reason"] == STILL_WRITTEN, r["reason"]
+    assert code == 0 and json.loads(out)["source_being_written"] is True, (code, err)
+    assert f"{log}: {SOURCE_LIVE}" in err
+    c = _replayed(cli, copy)
+    assert not c["complete"] and c["reason"] == COPIED_LIVE, c["reason"]
 
 
 @process_fault("the fly process killed (SIGKILL) in flight",
@@ -597,6 +604,27 @@ def f_log_directory_removed_in_flight(cli, tmp_path):
     assert not res.nominal and res.log_error.endswith("was removed or renamed during the flight"), res.log_error
 
 
+@process_fault("the log file removed in flight and another flight's log copied to its path (a cleanup script, or "
+               "another flight claiming the freed --log)",
+               "the flight lands as planned; the result says the path leads to another file now, exit 1 (before: "
+               "exit 0, 'log: PATH' naming the other flight's log, this one's lost without a word)")
+def f_log_replaced_in_flight(cli, tmp_path):
+    log, other = tmp_path / "replaced.mcap", tmp_path / "other.mcap"
+    other.write_bytes(b"\x89MCAP0\r\n another flight's log")
+    replaced = []
+
+    def replace(t):
+        if t > 1.0 and not replaced:
+            replaced.append(t)
+            log.unlink()
+            shutil.copy(other, log)
+
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), duration=2.0, log_path=log, on_period=replace)
+    assert replaced and res.phase == "done" and res.reason == "", res.reason
+    assert not res.nominal and res.log_error == (f"{log} is another file now: this flight's log was removed or "
+                                                 f"replaced during the flight"), res.log_error
+
+
 @process_fault("the log truncated to nothing in flight (`truncate -s 0`, `> file`, a cleanup script)",
                "the writer finds its file's start gone within a second and stops; the flight acts on the failed "
                "log (`on_log_failure`) and its result names it; never reported complete")
@@ -646,6 +674,34 @@ def f_ctrl_c_in_enumerate(cli, tmp_path):
     assert [r["n"] for r in rows_printed] == list(range(1, 12))  # the finished levels, and no level after
     assert "Traceback" not in err and "interrupted" in err
     assert "enumeration stopped in level 12; levels 1 to 11 are complete" in err
+
+
+@process_fault("SIGTERM, or in another run a hang-up, to `log recover` scanning a 4 GiB file (a flight log's header "
+               "and metadata, then zeros: a long scan), once its copy exists",
+               "it stops: one line 'interrupted (SIGTERM)' (or SIGHUP), exit 143 (129); no partial copy is left, so a "
+               "retry runs (before: killed where it stood, a 1.7 kB unfinalized copy left that the retry refused to "
+               "overwrite)")
+def f_signal_to_log_recover(cli, tmp_path):
+    from tests.flightlog.damage import chunks_of, flight_log
+
+    log = flight_log()
+    head = log.read_bytes()[:chunks_of(log)[0].start]  # header and metadata: the scan then walks the zeros
+    src = tmp_path / "long.mcap"
+    with open(src, "wb") as fh:
+        fh.write(head)
+        fh.truncate(4 << 30)  # sparse: no disk used
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        dst = tmp_path / f"copy-{sig.name}.mcap"
+        proc = subprocess.Popen([sys.executable, "-m", "groundstation", "log", "recover", str(src), str(dst)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        try:
+            _wait_until(dst.exists, proc, "created its copy")
+            proc.send_signal(sig)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            proc.kill()
+        assert (proc.returncode, err.strip()) == (128 + sig, f"groundstation: interrupted ({sig.name})"), err
+        assert not dst.exists() and "Traceback" not in err
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])
