@@ -88,7 +88,7 @@ def validate(schema: type[T], data: object, *, path: str | None = None, prefix: 
     ``prefix`` is prepended to key paths, for sections validated on their own (e.g. ``module``).
     """
     try:
-        return TypeAdapter(schema).validate_python(data)
+        value = TypeAdapter(schema).validate_python(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(p) for p in _key_path(data, err["loc"]))
@@ -98,6 +98,30 @@ def validate(schema: type[T], data: object, *, path: str | None = None, prefix: 
             msg = "unknown key"
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
         raise ConfigError(msg + more, path=path, key=key) from None
+    coerced = _coerced_number(data, value, ())
+    if coerced is not None:
+        where, raw = coerced
+        key = ".".join(k for k in (prefix, ".".join(map(str, where))) if k) or None
+        raise ConfigError(f"expected a number, not {'true' if raw is True else 'false' if raw is False else repr(raw)}",
+                          path=path, key=key)
+    return value
+
+
+def _coerced_number(raw: object, value: object, where: tuple) -> tuple[tuple, object] | None:
+    """The first place (key path, value as written) where a boolean or a string of the input became a number:
+    pydantic's lax mode takes ``size = true`` as 1 m and ``rate_hz = "250"`` as 250 Hz (hostile campaign 30)."""
+    if isinstance(raw, bool | str):
+        return (where, raw) if isinstance(value, int | float) and not isinstance(value, bool) else None
+    if isinstance(raw, dict):
+        for k, v in raw.items():
+            inner = value.get(k) if isinstance(value, dict) else getattr(value, str(k), None)
+            if inner is not None and (found := _coerced_number(v, inner, (*where, k))) is not None:
+                return found
+    elif isinstance(raw, list | tuple) and isinstance(value, list | tuple) and len(raw) == len(value):
+        for i, (v, inner) in enumerate(zip(raw, value, strict=True)):
+            if (found := _coerced_number(v, inner, (*where, i))) is not None:
+                return found
+    return None
 
 
 def _key_path(data: object, loc: tuple) -> list:

@@ -80,6 +80,45 @@ class GuardedStdout:
         os.close(null)
 
 
+class QuietStderr:
+    """``sys.stderr`` of a command's process: a write or flush that fails (a full device, a pipe gone) is dropped,
+    and so is everything after it. Stderr carries the diagnostics; losing them must not change what the command
+    does or its exit status (on a full stderr, bad input exited 1 with an unseen traceback instead of 2, and
+    ``replay`` printed nothing on stdout: hostile campaign 30)."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self._lost = False
+
+    def write(self, text: str) -> int:
+        if not self._lost:
+            try:
+                return self._stream.write(text)
+            except OSError:
+                self._give_up()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._lost:
+            try:
+                self._stream.flush()
+            except OSError:
+                self._give_up()
+
+    def isatty(self) -> bool:
+        return not self._lost and self._stream.isatty()
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+    def _give_up(self) -> None:
+        """Descriptor 2 onto /dev/null: the buffer's rest would fail again at exit, and so would a C library."""
+        self._lost = True
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+
+
 def stdout_lost() -> None:
     """Stdout failed and the command said so on stderr: from here what is printed goes to /dev/null (Python's own
     flush at exit would fail once more, with a traceback and status 120). Only the command line's own stdout
@@ -100,6 +139,8 @@ def hold_standard_descriptors() -> None:
                 os.dup2(null, fd)
                 os.close(null)
     sys.stdout = GuardedStdout(sys.stdout)
+    if sys.stderr is not None:
+        sys.stderr = QuietStderr(sys.stderr)
 
 
 @contextmanager

@@ -58,3 +58,20 @@ def test_closed_standard_descriptors_are_held_on_dev_null(tmp_path):
             assert (fd, log.read_bytes()) == ("1", b"summary")  # what the process printed, in the file
         else:
             assert int(fd) > 2 and null == "True" and log.read_bytes() == b""
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+def test_stderr_on_a_full_device_changes_no_exit_status_nor_stdout(tmp_path):
+    """Stderr carries the diagnostics: on a full device they are lost, the command's status and its output are not
+    (bad input exited 1 with a traceback nobody saw, and a warning before the output made ``replay`` print nothing:
+    hostile campaign 30)."""
+    def run(*args: str) -> subprocess.CompletedProcess:
+        with open("/dev/full", "w") as full_stderr:
+            return subprocess.run([sys.executable, "-m", "groundstation", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                                  stderr=full_stderr, text=True, timeout=120)
+
+    assert run("enumerate", "0").returncode == 2  # bad input, its one line lost
+    missing = run("replay", str(tmp_path / "none.mcap"))
+    assert missing.returncode == 2 and missing.stdout == ""
+    levels = run("enumerate", "3", "--json")  # a progress bar on stderr meanwhile
+    assert levels.returncode == 0 and [line.count('"n"') for line in levels.stdout.splitlines()] == [1, 1, 1]
