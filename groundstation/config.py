@@ -70,12 +70,22 @@ def _no_constant(name: str):
     raise ValueError(f"{name} is not a finite number")
 
 
+def _no_duplicate(pairs: list[tuple[str, object]]) -> dict:
+    seen: dict = {}
+    for key, value in pairs:
+        if key in seen:  # Python's parser keeps the last silently; TOML refuses a duplicate key, so does this
+            raise ValueError(f"key {key!r} given twice in one object")
+        seen[key] = value
+    return seen
+
+
 def read_json(path: str | Path) -> object:
-    """Parse a JSON file (read by :func:`read_text`); a syntax error or a non-finite number (JSON has none, but
-    Python's parser takes ``NaN`` and ``Infinity``) is a :class:`ConfigError` naming the file."""
+    """Parse a JSON file (read by :func:`read_text`); a syntax error, a key given twice in one object or a
+    non-finite number (JSON has none, but Python's parser takes ``NaN`` and ``Infinity``) is a
+    :class:`ConfigError` naming the file."""
     text = read_text(path)
     try:
-        return json.loads(text, parse_constant=_no_constant)
+        return json.loads(text, parse_constant=_no_constant, object_pairs_hook=_no_duplicate)
     except ValueError as exc:
         raise ConfigError(f"invalid JSON: {exc}", path=str(path)) from None
     except RecursionError:

@@ -49,6 +49,16 @@ def test_json_without_non_finite_numbers(tmp_path):
         config.read_json(p)
 
 
+def test_json_with_a_key_given_twice(tmp_path):
+    """Python's parser keeps the last of two (an edit that left the old value above the new one flew silently)."""
+    p = tmp_path / "a.json"
+    p.write_text('{"modules": [{"yaw": 0.1, "yaw": 0.2}]}')
+    with pytest.raises(ConfigError, match="a.json: invalid JSON: key 'yaw' given twice in one object"):
+        config.read_json(p)
+    p.write_text('{"a": {"yaw": 1}, "b": {"yaw": 2}}')  # the same key in two objects is no duplicate
+    assert config.read_json(p) == {"a": {"yaw": 1}, "b": {"yaw": 2}}
+
+
 def test_missing_directory_and_unreadable(tmp_path):
     with pytest.raises(ConfigError, match="none.toml: file not found"):
         config.read_toml(tmp_path / "none.toml")

@@ -19,6 +19,8 @@ TABLE_ROWS = 10
 """Feasible candidates the printed ranking shows at most (``--table`` has every row)."""
 UNBOUNDED = 1_000_000
 """Console width, columns, at which a table is measured: wider than any table, so none is cropped to fit."""
+MAX_WORKERS = 256
+"""Most local worker processes ``--workers`` starts (each ~150 MB: 256 is ~40 GB, past any workstation)."""
 
 
 @click.command("design")
@@ -35,7 +37,8 @@ UNBOUNDED = 1_000_000
 @click.option("--scheme", default="compact", show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--no-modification", is_flag=True, help="Do not add n m g and the hover wrench to the task.")
-@click.option("--workers", type=int, default=1, show_default=True, help="Local worker processes.")
+@click.option("--workers", type=int, default=1, show_default=True,
+              help=f"Local worker processes (1-{MAX_WORKERS}: each is a Python process of ~150 MB).")
 @click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", help="Dask distributed scheduler.")
 @click.option("--results", default=None, metavar="FILE.jsonl",
               help="Results of every candidate, appended as they finish; rerun with it to resume.")
@@ -63,8 +66,8 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
 
     if not 1 <= min_modules <= max_modules:
         raise UsageError(f"need 1 <= --min-modules <= --max-modules, got {min_modules} and {max_modules}")
-    if workers < 1:
-        raise UsageError(f"--workers must be at least 1, got {workers}")
+    if not 1 <= workers <= MAX_WORKERS:  # unbounded, a typo started a million processes
+        raise UsageError(f"--workers must be 1 to {MAX_WORKERS}, got {workers}")
     out_path = writable_output(out, (".json",)) if out else None
     table_path = writable_output(table, (".csv", ".json")) if table else None
     results_path = writable_output(results, (".jsonl",)) if results else None

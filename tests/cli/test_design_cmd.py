@@ -106,7 +106,8 @@ def test_infeasible_within_max(cli):
 
 @pytest.mark.parametrize("args, fragment", [
     (["design", TOY, "--max-modules", "0"], "--min-modules <= --max-modules"),
-    (["design", TOY, "--workers", "0"], "--workers must be at least 1"),
+    (["design", TOY, "--workers", "0"], "--workers must be 1 to 256, got 0"),
+    (["design", TOY, "--workers", "1000000"], "--workers must be 1 to 256, got 1000000"),
     (["design", TOY, "--results", "r.txt"], "unsupported file type"),
     (["design", "missing.toml"], "missing.toml: file not found"),
     (["design", TOY, "--sample", "2", "--sigma", "nan"], "Invalid value for '--sigma': 'nan' is not a finite"),
