@@ -7,7 +7,8 @@ it ends the command as an interrupt later does (:func:`groundstation.cli.main`):
 import sys
 
 EXIT_INTERRUPTED = 130
-"""Exit status of an interrupted command (the CLI's too)."""
+"""Exit status of an interrupted command (``groundstation.cli.EXIT_INTERRUPTED``, which cannot be imported before
+the guard)."""
 
 
 def main() -> None:

@@ -5,6 +5,7 @@ import sys
 
 INTERRUPTED_WHILE_LOADING = """
 import os, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as a shell gives it (a test runner may pass it ignored)
 
 class Interrupt:  # the operator's Ctrl-C lands while click, a module the CLI loads, is being found
     def find_spec(self, name, path=None, target=None):

@@ -84,4 +84,4 @@ def test_no_import_cycles_between_layers():
 
 def test_nothing_imports_the_command_line():
     users = [layer for layer, deps in layer_graph().items() if "groundstation.cli" in deps]
-    assert users == ["groundstation.__main__"]  # ``python -m groundstation`` and nothing else
+    assert users == ["groundstation.launch"]  # the entry point (``groundstation``, ``python -m``) and nothing else

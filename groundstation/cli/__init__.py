@@ -13,6 +13,7 @@ import errno
 import logging
 import signal
 import sys
+import threading
 
 import click
 
@@ -26,12 +27,12 @@ from groundstation.cli.params_cmd import params_command
 from groundstation.cli.replay_cmd import replay_command
 from groundstation.cli.simulate_cmd import simulate_command
 from groundstation.errors import BackendError, GroundstationError
-from groundstation.launch import EXIT_INTERRUPTED
 from groundstation.output import StdoutError, hold_standard_descriptors, stdout_lost
 from groundstation.runtime.signals import LANDING_SIGNALS
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -104,6 +105,8 @@ def _terminate_as_interrupt() -> None:
         else:  # Ctrl-C ignored (a background job of a script): the signal still ends the command
             raise KeyboardInterrupt
 
+    if threading.current_thread() is not threading.main_thread():
+        return  # called in-process from another thread (a test, a script): signals are the main thread's business
     for s in ENDING_SIGNALS:
         if signal.getsignal(s) == signal.SIG_DFL:
             signal.signal(s, handler)
