@@ -261,7 +261,6 @@ class MavlinkBackend(BackendBase):
         lead_end = self._clock() + SETPOINT_LEAD_S
         while self._clock() < lead_end:  # PX4 enters offboard only once setpoints stream
             self._send_controls(np.zeros_like(self._applied))
-            self._probe()  # measured up to take-off: the flight's first loss and round trip are the link's now
             time.sleep(0.01)
             self._drain()
         for m in self._modules:
@@ -460,7 +459,6 @@ class MavlinkBackend(BackendBase):
                 sent = self._clock()
             self._send_controls(np.zeros_like(self._applied))
             self._heartbeat()
-            self._probe()
             time.sleep(0.005)
             self._drain()
         for i, m in enumerate(self._modules):
