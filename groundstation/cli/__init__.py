@@ -97,6 +97,8 @@ def _terminate_as_interrupt() -> None:
     recover`` left a partial copy that its retry then refused to overwrite, and ``design`` left a worker running
     (hostile campaign 30). ``fly`` puts its own handlers over these (it lands)."""
 
+    _ended_by.clear()  # an earlier command of this process (called in-process) is not this one
+
     def handler(signum, frame):
         _ended_by.append(signum)
         interrupt = signal.getsignal(signal.SIGINT)

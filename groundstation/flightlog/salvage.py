@@ -187,7 +187,6 @@ class LogScan:
         self._orphans: Counter[str] = Counter()
         self._chunk_index: dict[int, tuple[int, int, int]] = {}
         """An intact summary's chunk index (see :class:`_Summary`); empty without one."""
-        self._listed: set[tuple[int, int, int]] = set()
         self._seen_chunks: set = set()
         """Every chunk read so far: its index key and CRC."""
 
@@ -246,7 +245,6 @@ class LogScan:
         if summary is not None:
             self._expected, end = summary.messages, summary.data_end
             self._chunk_index = summary.chunks
-            self._listed = set(summary.chunks.values())
             yield from self._handed_out(summary.records)
         pos, crc, ended = len(MAGIC), zlib.crc32(MAGIC), False
         while pos < end and not ended:
@@ -317,7 +315,7 @@ class LogScan:
         self._seen_chunks.add(whole)
         if not self._chunk_index or self._chunk_index.get(pos) == key:
             return None
-        return "moved" if key in self._listed else "not listed"
+        return "moved" if key in self._chunk_index.values() else "not listed"  # rare: a scan of the index
 
     def _check_data_crc(self, data_end: DataEnd, crc: int, pos: int) -> None:
         """Damage no chunk CRC covers (the header, metadata, message indexes) shows only here; 0 means the writer
@@ -340,9 +338,10 @@ class LogScan:
         """The chunks between ``start`` and ``stop`` (from an intact summary's chunk index, else those whose records
         can be walked from ``start``) and, from the message indexes written after them, the messages they held per
         topic; None for the messages as soon as a record there does not parse."""
-        listed = sum(start <= at < stop for at in self._chunk_index)
         chunks, lost = self._walk(fh, start, stop)
-        return (listed, lost) if self._chunk_index else (chunks, lost)
+        if self._chunk_index:
+            chunks = sum(start <= at < stop for at in self._chunk_index)
+        return chunks, lost
 
     def _walk(self, fh: BinaryIO, start: int, stop: int) -> tuple[int, dict[str, int] | None]:
         lost: Counter[str] = Counter()
