@@ -118,6 +118,19 @@ def attempted(run: Callable, *args, label: str = ""):
     raise AssertionError("unreachable")
 
 
+@contextlib.contextmanager
+def ended_at_exit():
+    """A list for the processes a test starts: each is ended (SIGTERM, waited for) on the way out, also when a later
+    one does not start (a relay left running held the next test's port, which failed every test after it)."""
+    procs: list[subprocess.Popen] = []
+    try:
+        yield procs
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait(10)
+
+
 def peer_process(tmp_path: Path, *args: str, as_world: bool = True) -> subprocess.Popen:
     """``groundstation sim-peer ARGS`` in its own process, as an operator starts it (at :func:`world_priority`
     unless not ``as_world``), returned once its links are open (the "simulating ..." line it prints then); its

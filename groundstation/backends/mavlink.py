@@ -150,6 +150,9 @@ class _Module:
         way back, the same for both when both come from the module as they are sent."""
         self.rtts: deque[float] = deque()
         """The newest round trips measured, s."""
+        self.route: int | None = None
+        """The other link this module's messages came on (a relay swapped links in flight), or None: its commands
+        go down that link too (its own may still reach it, if only one way was swapped)."""
 
 
 class MavlinkBackend(BackendBase):
@@ -176,6 +179,8 @@ class MavlinkBackend(BackendBase):
         self._polled = -np.inf
         """When the link was last read: an answer found now arrived after that (a lower bound on its time)."""
         self._locks = LinkLocks(self.links)
+        self.rerouted = ""
+        """Which modules' messages came on another module's link (see :attr:`Telemetry.rerouted`)."""
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -296,7 +301,7 @@ class MavlinkBackend(BackendBase):
                          gyro_age_s=float(now - gyro_heard),
                          module_gyro_ages_s=now - np.array([m.gyro_heard for m in self._modules]),
                          battery_v=self._battery.copy(), gyro=rates.mean(axis=0), module_gyros=rates,
-                         link_latency_s=self.link_latency(), link_loss=self.link_loss())
+                         link_latency_s=self.link_latency(), link_loss=self.link_loss(), rerouted=self.rerouted)
 
     def link_latency(self) -> np.ndarray:
         """Per module, the median of its newest round trips (``latency_samples``), s; NaN until one is measured.
@@ -415,12 +420,19 @@ class MavlinkBackend(BackendBase):
         for i, m in enumerate(self._modules):
             if m.system_id is None:
                 continue  # not heard yet: nothing to address (and nothing armed)
-            m.conn.mav.set_actuator_control_target_send(t_us, mw.ACTUATOR_GROUP, m.system_id, m.component_id,
-                                                        mw.to_controls(u[4 * i:4 * i + 4], self.u_max))
+            for conn in self._conns(m):
+                conn.mav.set_actuator_control_target_send(t_us, mw.ACTUATOR_GROUP, m.system_id, m.component_id,
+                                                          mw.to_controls(u[4 * i:4 * i + 4], self.u_max))
 
     def _command(self, m: _Module, command: int, *params: float) -> None:
         p = (list(params) + [0.0] * 7)[:7]
-        m.conn.mav.command_long_send(m.system_id or 0, m.component_id, command, 0, *p)
+        for conn in self._conns(m):
+            conn.mav.command_long_send(m.system_id or 0, m.component_id, command, 0, *p)
+
+    def _conns(self, m: _Module) -> list:
+        """The links ``m``'s commands go down: its own, and the one its messages came on if another (a module
+        drops what is addressed to another system, so the copy down the wrong link is harmless)."""
+        return [m.conn] if m.route is None else [m.conn, self._modules[m.route].conn]
 
     def _until_acked(self, m: _Module, commands: list[tuple[int, tuple[float, ...]]]) -> None:
         """Send ``commands`` now and repeat them until acknowledged (:meth:`_repeat_pending`)."""
@@ -473,11 +485,13 @@ class MavlinkBackend(BackendBase):
         now = self._clock()
         s = self.settings
         polled, self._polled = self._polled, now
-        for i, m in enumerate(self._modules):
-            while (msg := m.conn.recv_match(blocking=False)) is not None:
+        for link, on_link in enumerate(self._modules):
+            while (msg := on_link.conn.recv_match(blocking=False)) is not None:
                 kind = msg.get_type()
-                if kind == "BAD_DATA" or (m.system_id is not None and msg.get_srcSystem() != m.system_id):
+                i = None if kind == "BAD_DATA" else self._sender(link, msg.get_srcSystem())
+                if i is None:
                     continue
+                m = self._modules[i]
                 if kind == "HEARTBEAT":
                     if msg.type == mav.MAV_TYPE_GCS or msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
                         continue  # another ground station or a peripheral, not the module's autopilot
@@ -535,6 +549,21 @@ class MavlinkBackend(BackendBase):
                 else:
                     continue
                 m.heard = now
+
+    def _sender(self, link: int, system_id: int) -> int | None:
+        """The module that sent a message from ``system_id`` on ``link``: the link's own until its heartbeat named
+        it (preflight learns each link's system id), else the module of that system id, wherever it came (a relay
+        that swapped links in flight: noted in :attr:`rerouted`, which lands the flight); None for other systems."""
+        own = self._modules[link].system_id
+        if own is None or own == system_id:
+            return link
+        i = next((k for k, m in enumerate(self._modules) if m.system_id == system_id), None)
+        if i is not None and self._modules[i].route != link:
+            self._modules[i].route = link
+            note = (f"module {i}'s messages (system id {system_id}) came on module {link}'s link ({self.links[link]}):"
+                    f" its commands go down both")
+            self.rerouted = f"{self.rerouted}; {note}" if self.rerouted else note
+        return i
 
 
 def _clock_sample(samples: deque[tuple[float, float]], now: float, clock: float) -> None:

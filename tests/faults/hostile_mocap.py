@@ -1,6 +1,6 @@
 """A hostile publisher on a body's mocap key, in a process of its own (fault injection for the fault table).
 
-    python -m tests.faults.hostile_mocap --connect tcp/127.0.0.1:7490 --key mocap/assembly/pose
+    python -m tests.faults.hostile_mocap --connect tcp/127.0.0.1:8490 --key mocap/assembly/pose
                                          --mode second|huge-seq|replay|drift|spoof|malformed|copy-id|
                                                 nan-stamp|future-stamp|replay-captured|sink|resync|
                                                 handover-replay [--after 5]

@@ -47,7 +47,7 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
     ("blind_descent_1_mps", "failsafe.blind_descent_mps = 1 (a blind touchdown at 1 m/s)",
      {"max_tilt_deg = 75": "max_tilt_deg = 75\nblind_descent_mps = 1.0"}, "failsafe.blind_descent_mps"),
     ("mocap_endpoint_port_70000", "mocap.endpoint on port 70000 (Zenoh's own error named no key)",
-     {'endpoint = "tcp/127.0.0.1:7494"': 'endpoint = "tcp/127.0.0.1:70000"'}, "mocap.endpoint"),
+     {'endpoint = "tcp/127.0.0.1:8494"': 'endpoint = "tcp/127.0.0.1:70000"'}, "mocap.endpoint"),
     ("mocap_rate_20_hz", "mocap.rate_hz = 20 (one pose rejected was 50 ms of them: a healthy flight landed on 'every "
      "pose rejected')", {"rate_hz = 100": "rate_hz = 20"}, "mocap.rate_hz"),
     ("height_sigma_1_m", "failsafe.max_height_sigma_m = 1 (a blind estimate that far high meets the ground at 1 m/s)",
@@ -115,7 +115,7 @@ CONFIG_KEYS = [  # id, the flight config's change (as the row's description), th
 ]
 for _name, _what, _changes, *_fragments in CONFIG_KEYS:
     def _case(cli, tmp_path, changes=_changes, fragments=_fragments):
-        _fly_refused(cli, tmp_path, config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **changes), *fragments)
+        _fly_refused(cli, tmp_path, config_with(tmp_path, endpoint="tcp/127.0.0.1:8494", **changes), *fragments)
     _case.__name__ = f"f_absurd_{_name}"
     bad_input(f"fly with {_what}", f"exit 2 naming {_fragments[0].split(':')[0]}, never armed")(_case)
 
@@ -215,7 +215,7 @@ def f_absurd_flight_config_is_dev_zero(cli, tmp_path):
 @bad_input("fly with a flight config of 5 MiB",
            "exit 2 naming the file: larger than 4 MiB")
 def f_absurd_flight_config_of_5_mib(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8494")
     cfg.write_text(cfg.read_text() + "#" * (5 * 2**20))
     _fly_refused(cli, tmp_path, cfg, "larger than 4 MiB")
 
@@ -223,7 +223,7 @@ def f_absurd_flight_config_of_5_mib(cli, tmp_path):
 @bad_input("fly with a flight config in Latin-1",
            "exit 2 naming the file: not UTF-8")
 def f_absurd_flight_config_not_utf8(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8494")
     cfg.write_bytes(cfg.read_bytes().replace(b'body = "assembly"', b'body = "assembl\xe9"'))
     _fly_refused(cli, tmp_path, cfg, "not UTF-8 text")
 
@@ -231,7 +231,7 @@ def f_absurd_flight_config_not_utf8(cli, tmp_path):
 @bad_input("fly with a flight config holding an array nested 5000 deep",
            "exit 2 naming the file: nested deeper than the parser can follow (not a RecursionError traceback)")
 def f_absurd_flight_config_nested_5000_deep(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8494")
     cfg.write_text(cfg.read_text() + "\nx = " + "[" * 5000 + "]" * 5000 + "\n")
     _fly_refused(cli, tmp_path, cfg, "invalid TOML: nested deeper than the parser can follow")
 
@@ -247,7 +247,7 @@ def f_absurd_assembly_nested_100000_deep(cli, tmp_path):
 @bad_input("fly with assembly = /dev/zero",
            "exit 2 naming the config, assembly and /dev/zero")
 def f_absurd_assembly_is_dev_zero(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **{TOY_ASSEMBLY: "/dev/zero"})
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8494", **{TOY_ASSEMBLY: "/dev/zero"})
     _fly_refused(cli, tmp_path, cfg, "assembly: /dev/zero: not a text file")
 
 
@@ -291,10 +291,10 @@ def f_absurd_log_dir_in_a_symlink_loop(cli, tmp_path):
     (tmp_path / "loop-a").symlink_to(tmp_path / "loop-b")
     (tmp_path / "loop-b").symlink_to(tmp_path / "loop-a")
     loop = {'log_dir = "../../out/flights"': f'log_dir = "{tmp_path / "loop-a"}"'}
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7494", **loop)
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8494", **loop)
     _refused(cli, ("fly", str(cfg)), str(cfg), "log_dir")
     assert prepare(cfg, None, tmp_path / "elsewhere.mcap").log_file == tmp_path / "elsewhere.mcap"
-    modules = sitl_config(tmp_path, "crazyflie", 19748, "tcp/127.0.0.1:7495")
+    modules = sitl_config(tmp_path, "crazyflie", 22748, "tcp/127.0.0.1:8495")
     modules.write_text(modules.read_text().replace(*next(iter(loop.items()))))
     _refused(cli, ("params", str(modules)), str(modules), "log_dir", "log directory cannot be resolved")
 
@@ -313,7 +313,7 @@ def f_absurd_live_port_in_use(cli, tmp_path):
         if port < 1024:
             pytest.skip("the kernel gave a port below --live's range")
         log = tmp_path / "x.mcap"
-        _refused(cli, ("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7496")), "--live", str(port),
+        _refused(cli, ("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:8496")), "--live", str(port),
                        "--log", str(log)), f"--live {port}: cannot listen on tcp/127.0.0.1:{port}", log=log)
 
 

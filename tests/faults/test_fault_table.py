@@ -26,16 +26,24 @@ from groundstation.replay.analysis import analyse
 from groundstation.runtime.fly import fly
 from tests.disks import tiny_disk
 from tests.faults.table import Fault, bad_input, link_or_load, lying_mocap, module_fault, process_fault, rows
-from tests.peers import ROOT, host_freezes, peer_process, raise_if_stopped_by_host, stopped_by_host, world_priority
+from tests.peers import (
+    ROOT,
+    ended_at_exit,
+    host_freezes,
+    peer_process,
+    raise_if_stopped_by_host,
+    stopped_by_host,
+    world_priority,
+)
 from tests.runtime.test_fly import TRACK_START_S, config_with, quick_phases, read_log, sitl_config
 
-PEER_PORT, RELAY_PORT = 19900, 19910
-HOSTILE = "tcp/127.0.0.1:7490"
+PEER_PORT, RELAY_PORT = 22900, 22910
+HOSTILE = "tcp/127.0.0.1:8490"
 
 
 # -- bad input: one line naming the key, exit 2, nothing armed ---------------------------------------------------
 def _bad(cli, tmp_path, changes: dict, args: tuple = (), key: str = "", config: Path | None = None) -> None:
-    cfg = config or config_with(tmp_path, endpoint="tcp/127.0.0.1:7492", **changes)
+    cfg = config or config_with(tmp_path, endpoint="tcp/127.0.0.1:8492", **changes)
     logs = tmp_path / "logs"
     logs.mkdir(exist_ok=True)
     code, out, err = cli("fly", str(cfg), "--log", str(logs / "x.mcap"), *args)
@@ -52,7 +60,7 @@ BAD_INPUTS = [
     ("figure8_period_1e-6", {"period = 8.0": "period = 1e-6"}, (), "trajectory.period"),
     ("mocap_rate_1e9", {"rate_hz = 100": "rate_hz = 1e9"}, (), "mocap.rate_hz"),
     ("mavlink_port_99999", {'kind = "sim"': 'kind = "mavlink"\nmodules = ["udpout:127.0.0.1:99999", '
-                            '"udpout:127.0.0.1:14561"]'}, (), "port 99999 is not in 1..65535"),
+                            '"udpout:127.0.0.1:17561"]'}, (), "port 99999 is not in 1..65535"),
     ("crazyflie_port_99999", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["udp://127.0.0.1:99999", '
                               '"udp://127.0.0.1:19851"]'}, (), "backend.modules"),
     ("radio_channel_200", {'kind = "sim"': 'kind = "crazyflie"\nmodules = ["radio://0/200/2M/E7E7E7E701", '
@@ -79,10 +87,10 @@ BAD_INPUTS = [
                       '"radio://0/80/2M/E7E7E7E702"]'}, (), "500 packets/s"),
     ("firmware_params_on_sim", {"motor_time_constant = 0.02": 'motor_time_constant = 0.02\nfirmware_params = '
                                 '"x.toml"'}, (), "backend.firmware_params: unknown key"),
-    ("tls_without_certificates", {'endpoint = "tcp/127.0.0.1:7492"': 'endpoint = "tls/127.0.0.1:7492"\n'
+    ("tls_without_certificates", {'endpoint = "tcp/127.0.0.1:8492"': 'endpoint = "tls/127.0.0.1:8492"\n'
                                   'tls = { root_ca = "ca.pem", certificate = "gs.pem", private_key = "gs.key" }'},
      (), "mocap.tls.root_ca: file not found"),
-    ("tls_on_a_tcp_endpoint", {"max_speed": "x", 'endpoint = "tcp/127.0.0.1:7492"': 'endpoint = "tcp/127.0.0.1:7492"'
+    ("tls_on_a_tcp_endpoint", {"max_speed": "x", 'endpoint = "tcp/127.0.0.1:8492"': 'endpoint = "tcp/127.0.0.1:8492"'
                                '\ntls = { root_ca = "ca.pem", certificate = "c", private_key = "k" }'}, (),
      "with tls the endpoint must be tls/HOST:PORT"),
 ]
@@ -116,7 +124,7 @@ def f_bad_input_missing_config(cli, tmp_path):
 @bad_input("a log directory that cannot be written",
            "exit 2 naming log_dir")
 def f_bad_input_unwritable_log_dir(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7492",
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8492",
                       **{'log_dir = "../../out/flights"': 'log_dir = "/proc/nope"'})
     code, out, err = cli("fly", str(cfg))
     assert code == 2 and "log_dir" in err and err.count("\n") == 1
@@ -203,7 +211,7 @@ def f_mocap_dropout(cli, tmp_path):
     from groundstation.runtime.fly import Faults
 
     faults = Faults()
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7493"), duration=4.0, log_path=tmp_path / "d.mcap",
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8493"), duration=4.0, log_path=tmp_path / "d.mcap",
               faults=faults, on_period=lambda t: setattr(faults, "mocap_paused", t > TRACK_START_S + 4.0))
     assert res.phase == "done" and res.reason.startswith("mocap stale") and not res.nominal
 
@@ -215,7 +223,7 @@ def f_tied_down(cli, tmp_path):
     from groundstation.runtime.fly import Faults
 
     faults = Faults(tied_down=True)
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7493"), duration=4.0, log_path=tmp_path / "tied.mcap",
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8493"), duration=4.0, log_path=tmp_path / "tied.mcap",
               faults=faults)
     assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
         res.reason
@@ -231,7 +239,7 @@ def f_mocap_decoy_body(cli, tmp_path):
     from groundstation.runtime.fly import Faults
 
     log = tmp_path / "decoy.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7543"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8543"), duration=4.0, log_path=log,
               faults=Faults(mocap_decoy=True))
     assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
         res.reason
@@ -248,7 +256,7 @@ def f_mocap_decoy_climbing(cli, tmp_path):
 
     log = tmp_path / "climbing.mcap"
     faults = Faults(mocap_decoy=True)
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7545"), duration=4.0, log_path=log, faults=faults,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8545"), duration=4.0, log_path=log, faults=faults,
               on_period=lambda t: setattr(faults, "mocap_decoy_climb_mps", 0.33))
     assert res.phase == "emergency" and res.reason.startswith("the assembly does not move as its thrust says"), \
         res.reason
@@ -273,7 +281,7 @@ def _stalling(seconds: float, at: float = TRACK_START_S + 4.0):
               "motors off, reason loop stalled (not a later tilt), exit 1")
 def f_loop_stall_200ms(cli, tmp_path):
     log = tmp_path / "stall.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7494"), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8494"), duration=4.0, log_path=log,
               on_period=_stalling(0.2))
     assert res.phase == "emergency" and res.reason.startswith("loop stalled 2"), res.reason
     assert "the simulator ran on open-loop over it" in res.reason
@@ -283,7 +291,7 @@ def f_loop_stall_200ms(cli, tmp_path):
 @link_or_load("the control loop stalls 50 ms in flight",
               "a warning names it; the flight goes on")
 def f_loop_stall_50ms(cli, tmp_path):
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7494"), duration=4.0, log_path=tmp_path / "s.mcap",
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8494"), duration=4.0, log_path=tmp_path / "s.mcap",
               on_period=_stalling(0.05))
     assert res.phase == "done" and res.nominal
     assert any(text.startswith("loop stalled 5") for _, level, text in res.events if level == "warning")
@@ -298,7 +306,7 @@ def f_cpu_hog(cli, tmp_path):
                                                   "while True: pass"])
     try:
         with host_freezes() as seen:
-            cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7495")
+            cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8495")
             run = subprocess.run([sys.executable, "-m", "groundstation", "fly", str(cfg), "--duration", "4",
                                   "--log", str(tmp_path / "hog.mcap"), "--json"], capture_output=True, text=True,
                                  cwd=ROOT, timeout=120)
@@ -323,7 +331,7 @@ def _completed_unless_the_host_stopped(run: subprocess.CompletedProcess, seen) -
               "the flight completes (exit 0), never on the round trip; if the host stops the machine's CPUs ~100 ms "
               "(a probe per CPU), motors off on the stall or the silent link it causes")
 def f_shipped_crazyflie_sitl_beside_two_hogs(cli, tmp_path):
-    port, mocap = 19930, "tcp/127.0.0.1:7433"
+    port, mocap = 22930, "tcp/127.0.0.1:8433"
     text = (ROOT / "configs/flights/toy_figure8_crazyflie_sitl.toml").read_text()
     assert all(bound in text for bound in ("link_timeout_s = 0.1", "max_link_latency_s = 0.014",
                                            "link_stop_latency_s = 0.050"))  # the bounds it ships with
@@ -368,7 +376,7 @@ def _small_disk(tmp_path):
                "the writer's failure seen in flight, landing, summary printed, what was written readable, exit 1")
 def f_full_disk(cli, tmp_path):
     with _small_disk(tmp_path) as (disk, limit):
-        cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7496")
+        cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8496")
         log = disk / "full.mcap"
         code = ("import resource, signal, sys\n"
                 f"if {limit!r}: signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
@@ -395,7 +403,7 @@ def f_full_disk_before_takeoff(cli, tmp_path):
                 filler.write(b"\0" * 4096)
                 filler.flush()
         log = disk / "empty.mcap"
-        code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7544")), "--duration", "2",
+        code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:8544")), "--duration", "2",
                              "--log", str(log))
         assert code == 2 and "preflight failed" in err and "the log: " in err and "Traceback" not in err, err
         assert log.stat().st_size == 0
@@ -405,18 +413,14 @@ def f_full_disk_before_takeoff(cli, tmp_path):
 @contextlib.contextmanager
 def _relayed(tmp_path, **faults):
     args = [f"--{k.replace('_', '-')}={v}" for k, v in faults.items()]
-    procs = [subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(RELAY_PORT), "--target",
-                               str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL,
-                              preexec_fn=world_priority)]
-    procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
-                              "--mocap", "tcp/127.0.0.1:7481", "--params",
-                              str(ROOT / "firmware_params/crazyflie.toml")))
-    try:
-        yield sitl_config(tmp_path, "crazyflie", RELAY_PORT, "tcp/127.0.0.1:7481")
-    finally:
-        for p in procs:
-            p.terminate()
-            p.wait(10)
+    with ended_at_exit() as procs:
+        procs.append(subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(RELAY_PORT), "--target",
+                                       str(PEER_PORT), "--links", "2", *args], stdout=subprocess.DEVNULL,
+                                      preexec_fn=world_priority))
+        procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                                  "--mocap", "tcp/127.0.0.1:8481", "--params",
+                                  str(ROOT / "firmware_params/crazyflie.toml")))
+        yield sitl_config(tmp_path, "crazyflie", RELAY_PORT, "tcp/127.0.0.1:8481")
 
 
 def _max_tilt_deg(log) -> float:
@@ -434,7 +438,7 @@ def _max_tilt_deg(log) -> float:
 def f_link_30ms_from_the_start(cli, tmp_path):
     with _relayed(tmp_path, delay_ms=30) as cfg:
         log = tmp_path / "slow.mcap"
-        with pytest.raises(PreflightError, match=r"module 0 \(udp://127.0.0.1:19910\) link round trip \d+ ms > "
+        with pytest.raises(PreflightError, match=r"module 0 \(udp://127.0.0.1:22910\) link round trip \d+ ms > "
                                                  r"14 ms"):
             fly(cfg, log_path=log)
     counts, _, logs, _ = read_log(log)
@@ -491,8 +495,8 @@ def f_params_crazyflie_5_percent_loss(cli, tmp_path):
 @link_or_load("parameters of modules that do not answer",
               "one line per module, exit 1")
 def f_params_silent_modules(cli, tmp_path):
-    for kind, port in (("crazyflie", 19746), ("mavlink", 19756)):
-        cfg = sitl_config(tmp_path, kind, port, "tcp/127.0.0.1:7608")
+    for kind, port in (("crazyflie", 22746), ("mavlink", 22756)):
+        cfg = sitl_config(tmp_path, kind, port, "tcp/127.0.0.1:8608")
         code, out, err = cli("params", str(cfg))
         assert code == 1 and err.count("does not answer") == 2 and err.count("\n") == 2, (kind, err)
 
@@ -501,27 +505,22 @@ def f_params_silent_modules(cli, tmp_path):
 @link_or_load("MAVLink link losing 5 % (arming, flight, disarm)",
               "arms (commands repeated until acknowledged), flies, lands")
 def f_mavlink_5_percent_loss(cli, tmp_path):
-    relay = subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", "19970", "--target", "19960",
-                              "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL,
-                             preexec_fn=world_priority)
-    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", "mavlink", "--port",
-                        "19960", "--mocap", "tcp/127.0.0.1:7497", "--params",
-                        str(ROOT / "firmware_params/px4/module_params.toml"))
-    try:
-        cfg = sitl_config(tmp_path, "mavlink", 19970, "tcp/127.0.0.1:7497")  # its 0.5 s link timeout: 5 % loss
+    with ended_at_exit() as procs:
+        procs.append(subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", "22970", "--target", "22960",
+                                       "--links", "2", "--loss", "0.05", "--seed", "3"], stdout=subprocess.DEVNULL,
+                                      preexec_fn=world_priority))
+        procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--protocol", "mavlink",
+                                  "--port", "22960", "--mocap", "tcp/127.0.0.1:8497", "--params",
+                                  str(ROOT / "firmware_params/px4/module_params.toml")))
+        cfg = sitl_config(tmp_path, "mavlink", 22970, "tcp/127.0.0.1:8497")  # its 0.5 s link timeout: 5 % loss
         res = fly(cfg, duration=3.0, log_path=tmp_path / "px4.mcap")
-    finally:
-        relay.terminate()
-        peer.terminate()
-        relay.wait(10)
-        peer.wait(10)
     assert res.phase == "done" and res.nominal, res.reason
 
 
 @process_fault("fly with stdin closed (started from a script, cron or a service)",
                "flies without the key reader, exit 0")
 def f_stdin_closed(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7634")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8634")
     log = tmp_path / "no-stdin.mcap"
     run = subprocess.run(["bash", "-c", 'exec <&- && exec "$0" -m groundstation fly "$1" --duration 1 --log "$2"',
                           sys.executable, str(cfg), str(log)], capture_output=True, text=True, timeout=300)
@@ -533,9 +532,9 @@ def f_stdin_closed(cli, tmp_path):
 @contextlib.contextmanager
 def _crazyflie_peer(tmp_path):
     peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
-                        "--mocap", "tcp/127.0.0.1:7633", "--params", str(ROOT / "firmware_params/crazyflie.toml"))
+                        "--mocap", "tcp/127.0.0.1:8633", "--params", str(ROOT / "firmware_params/crazyflie.toml"))
     try:
-        yield sitl_config(tmp_path, "crazyflie", PEER_PORT, "tcp/127.0.0.1:7633")
+        yield sitl_config(tmp_path, "crazyflie", PEER_PORT, "tcp/127.0.0.1:8633")
     finally:
         peer.terminate()
         peer.wait(10)

@@ -23,7 +23,7 @@ from tests.faults.test_state_estimation import (
 from tests.peers import ROOT, host_freezes, peer_process, raise_if_stopped_by_host
 from tests.runtime.test_fly import SITL, TRACK_START_S, config_with, sitl_config
 
-ENDPOINT = "tcp/127.0.0.1:7494"
+ENDPOINT = "tcp/127.0.0.1:8494"
 
 
 def _attacked(tmp_path, mode: str, keyed: bool):
@@ -170,7 +170,7 @@ def _keyed_flight_with_modules(tmp_path, kind: str, port: int, mocap: str):
     assert res.nominal and res.reason == "", (res.phase, res.reason)
 
 
-for _kind, _port, _mocap in (("crazyflie", 19994, "tcp/127.0.0.1:7715"), ("mavlink", 19996, "tcp/127.0.0.1:7716")):
+for _kind, _port, _mocap in (("crazyflie", 22994, "tcp/127.0.0.1:8715"), ("mavlink", 22996, "tcp/127.0.0.1:8716")):
     def _keyed_case(cli, tmp_path, kind=_kind, port=_port, mocap=_mocap):
         _keyed_flight_with_modules(tmp_path, kind, port, mocap)
     _keyed_case.__name__ = f"f_mocap_keyed_with_{_kind}_modules"

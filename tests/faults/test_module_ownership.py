@@ -22,8 +22,8 @@ from tests.faults.table import Fault, module_fault, rows
 from tests.peers import ROOT, peer_process, start_peer, stop_peer
 from tests.runtime.test_fly import read_log, sitl_config
 
-PORTS = {"crazyflie": (19700, "crtp", "udp://127.0.0.1:{}"), "mavlink": (14700, "mavlink", "udpout:127.0.0.1:{}")}
-MOCAP = "tcp/127.0.0.1:7635"
+PORTS = {"crazyflie": (22700, "crtp", "udp://127.0.0.1:{}"), "mavlink": (17700, "mavlink", "udpout:127.0.0.1:{}")}
+MOCAP = "tcp/127.0.0.1:8635"
 
 
 @contextlib.contextmanager
@@ -79,7 +79,7 @@ for _kind in PORTS:
 def f_crazyflie_link_listed_twice(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
         _refused(_links(cfg, [0, 0], "crazyflie"), tmp_path,
-                 r"module 0 \(udp://127.0.0.1:19700\) and module 1 \(udp://127.0.0.1:19700\) are one module "
+                 r"module 0 \(udp://127.0.0.1:22700\) and module 1 \(udp://127.0.0.1:22700\) are one module "
                  r"\(unique id [0-9a-f]{24}\)")
 
 
@@ -151,9 +151,9 @@ def f_second_ground_station_elsewhere(cli, tmp_path):
 
 def _stock_parameters_row(kind: str, peer_class, wrong: str):
     def run(cli, tmp_path):
-        peer, th = start_peer(peer_class, 19890, 7479)  # fresh modules: stock firmware parameters
+        peer, th = start_peer(peer_class, 22890, 8479)  # fresh modules: stock firmware parameters
         try:
-            cfg = sitl_config(tmp_path, kind, 19890, "tcp/127.0.0.1:7479")
+            cfg = sitl_config(tmp_path, kind, 22890, "tcp/127.0.0.1:8479")
             log = tmp_path / "p.mcap"
             with pytest.raises(PreflightError) as err:
                 fly(cfg, log_path=log)
@@ -171,8 +171,8 @@ def _stock_parameters_row(kind: str, peer_class, wrong: str):
 
 
 for _kind, _class, _wrong in [
-        ("crazyflie", SimulatedCrazyflies, "module 0 (udp://127.0.0.1:19890): supervisor.tmblChckEn is 1, must be 0"),
-        ("mavlink", SimulatedPx4, "module 0 (udpout:127.0.0.1:19890): COM_OF_LOSS_T is 1, must be 0.1")]:
+        ("crazyflie", SimulatedCrazyflies, "module 0 (udp://127.0.0.1:22890): supervisor.tmblChckEn is 1, must be 0"),
+        ("mavlink", SimulatedPx4, "module 0 (udpout:127.0.0.1:22890): COM_OF_LOSS_T is 1, must be 0.1")]:
     _stock_parameters_row(_kind, _class, _wrong)
 
 

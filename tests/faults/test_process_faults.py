@@ -109,7 +109,7 @@ def _replayed(cli, log: Path) -> dict:
 def f_log_path_exists(cli, tmp_path):
     log = tmp_path / "yesterday.mcap"
     log.write_bytes(b"yesterday's flight")
-    code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7657")), "--log", str(log))
+    code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:8657")), "--log", str(log))
     assert code == 2 and err.count("\n") == 1 and "--log" in err and "never overwritten" in err, err
     assert log.read_bytes() == b"yesterday's flight"
 
@@ -117,7 +117,7 @@ def f_log_path_exists(cli, tmp_path):
 @process_fault("a second fly given the --log of a flight in progress",
                "the second refused (one line, exit 2); the first flies on (exit 0), its log whole")
 def f_log_path_of_a_running_flight(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7658")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8658")
     log = tmp_path / "first.mcap"
     first = _fly_process(cfg, log, "--duration", "1")
     try:
@@ -139,7 +139,7 @@ def f_log_path_of_a_running_flight(cli, tmp_path):
 def f_too_few_file_descriptors(cli, tmp_path):
     import resource
 
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7659")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8659")
     hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]
     for limits, name in (((24, 24), "hard"), ((24, hard), "soft")):
         log = tmp_path / f"{name}.mcap"
@@ -160,7 +160,7 @@ def f_too_few_file_descriptors(cli, tmp_path):
                "never armed; the log finalized, its end aborted with the reason naming SIGTERM, replayable; exit 1")
 def f_sigterm_in_preflight(cli, tmp_path):
     log = tmp_path / "preflight.mcap"
-    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7659"), log)
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:8659"), log)
     try:
         _wait_until(log.exists, proc, "claimed its log")  # past its input checks: opening, then preflight
         proc.send_signal(signal.SIGTERM)
@@ -183,7 +183,7 @@ def f_sigterm_in_preflight(cli, tmp_path):
                "exit 130, no summary, in one CI run; now only the modules' own checks are interrupted)")
 def f_ctrl_c_storm_in_preflight(cli, tmp_path):
     log = tmp_path / "storm.mcap"
-    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7678"), log)
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:8678"), log)
     sent = 0
     try:
         # From its log's first bytes (its writer has started): interrupted while still connecting, before that, it
@@ -232,14 +232,14 @@ def _landed(code: int, err: str, r: dict, sig: signal.Signals) -> None:
 @process_fault("SIGTERM to fly in flight (a service manager stopping it)",
                "a landing, the log finalized with its reason operator land (SIGTERM); exit 0")
 def f_sigterm_in_flight(cli, tmp_path):
-    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGTERM], 7660, signal.SIGTERM), signal.SIGTERM)
+    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGTERM], 8660, signal.SIGTERM), signal.SIGTERM)
 
 
 @process_fault("SIGTERM twice to fly in flight",
                "landing at the first, motors off at the second; the end (emergency, operator stop (SIGTERM)) in the "
                "log and in replay; exit 1")
 def f_sigterm_twice_in_flight(cli, tmp_path):
-    code, err, r = _signalled_in_flight(cli, tmp_path, [signal.SIGTERM] * 2, 7667, signal.SIGTERM)
+    code, err, r = _signalled_in_flight(cli, tmp_path, [signal.SIGTERM] * 2, 8667, signal.SIGTERM)
     assert code == 1 and "the flight ended in emergency: operator stop (SIGTERM)" in err, err
     assert r["complete"] and r["phase"] == "emergency" and r["reason"] == "operator stop (SIGTERM)", r
 
@@ -249,7 +249,7 @@ def f_sigterm_twice_in_flight(cli, tmp_path):
                "a landing, never a stop (nobody is left to have asked for one); the log finalized with its reason "
                "operator land (SIGHUP); exit 0")
 def f_sighup_twice_in_flight(cli, tmp_path):
-    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 7668, signal.SIGHUP), signal.SIGHUP)
+    _landed(*_signalled_in_flight(cli, tmp_path, [signal.SIGHUP] * 2, 8668, signal.SIGHUP), signal.SIGHUP)
 
 
 def _lands_on_the_first(cli, tmp_path, signals: list, port: int) -> None:
@@ -263,13 +263,13 @@ def _lands_on_the_first(cli, tmp_path, signals: list, port: int) -> None:
                "the landing goes on, never a stop: the SIGTERM after a hang-up is the session's, whatever began the "
                "landing; the log finalized with operator land (SIGINT); exit 0")
 def f_ctrl_c_then_hangup_then_sigterm(cli, tmp_path):
-    _lands_on_the_first(cli, tmp_path, [signal.SIGINT, signal.SIGHUP, signal.SIGTERM], 7676)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGINT, signal.SIGHUP, signal.SIGTERM], 8676)
 
 
 @process_fault("Ctrl-\\ (SIGQUIT) in flight",
                "a landing like Ctrl-C (by default it ends the process and the assembly falls); exit 0")
 def f_sigquit_in_flight(cli, tmp_path):
-    _lands_on_the_first(cli, tmp_path, [signal.SIGQUIT], 7673)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGQUIT], 8673)
 
 
 @process_fault("SIGUSR1 twice in flight, then one Ctrl-C, 0.3 s apart (a tool's kill -USR1, a log rotation; SIGUSR2 "
@@ -277,7 +277,7 @@ def f_sigquit_in_flight(cli, tmp_path):
                "a landing (by default it ends the process and the assembly falls), never a stop: tools repeat it, "
                "and the operator's first Ctrl-C after it is their first request; exit 0")
 def f_sigusr1_twice_then_ctrl_c_in_flight(cli, tmp_path):
-    _lands_on_the_first(cli, tmp_path, [signal.SIGUSR1, signal.SIGUSR1, signal.SIGINT], 7674)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGUSR1, signal.SIGUSR1, signal.SIGINT], 8674)
 
 
 @process_fault("SIGXCPU in flight (the CPU-time limit: ulimit -t, systemd's LimitCPU=), then SIGPWR (a UPS's power "
@@ -285,7 +285,7 @@ def f_sigusr1_twice_then_ctrl_c_in_flight(cli, tmp_path):
                "a landing (by default each ends the process and the assembly falls: 0.94 m up, no summary, in a "
                "hostile check), never a stop; the log finalized with operator land (SIGXCPU); exit 0")
 def f_sigxcpu_sigpwr_and_a_realtime_signal_in_flight(cli, tmp_path):
-    _lands_on_the_first(cli, tmp_path, [signal.SIGXCPU, signal.SIGPWR, signal.SIGRTMIN + 3], 7677)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGXCPU, signal.SIGPWR, signal.SIGRTMIN + 3], 8677)
 
 
 @process_fault("SIGABRT in flight (systemd's WatchdogSec=, kill -ABRT), then SIGTRAP and SIGSYS, 0.3 s apart (sent "
@@ -293,7 +293,7 @@ def f_sigxcpu_sigpwr_and_a_realtime_signal_in_flight(cli, tmp_path):
                "a landing, never a stop (by default each ended the process 0.8-0.94 m up, the log 'no end of flight': "
                "hostile campaign 28); the log finalized with operator land (SIGABRT); exit 0")
 def f_sigabrt_sigtrap_sigsys_in_flight(cli, tmp_path):
-    _lands_on_the_first(cli, tmp_path, [signal.SIGABRT, signal.SIGTRAP, signal.SIGSYS], 7679)
+    _lands_on_the_first(cli, tmp_path, [signal.SIGABRT, signal.SIGTRAP, signal.SIGSYS], 8679)
 
 
 @process_fault("fly --json with its stdout on a full device (/dev/full)",
@@ -304,7 +304,7 @@ def f_stdout_full(cli, tmp_path):
     err_path = tmp_path / "full.err"
     with open("/dev/full", "w") as full, err_path.open("w") as err:
         proc = subprocess.run([sys.executable, "-m", "groundstation", "fly",
-                               str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7675")), "--log", str(log), "--json",
+                               str(config_with(tmp_path, endpoint="tcp/127.0.0.1:8675")), "--log", str(log), "--json",
                                "--duration", "1"], stdout=full, stderr=err, cwd=ROOT, timeout=300)
     err = err_path.read_text()
     assert proc.returncode == 0 and "Traceback" not in err, err
@@ -353,7 +353,7 @@ def f_terminal_hangs_up_in_flight(cli, tmp_path):
     out_path = tmp_path / "hung_up.out"
     with out_path.open("w") as out:  # the summary as JSON, to see what the flight says; the rest on the terminal
         proc = subprocess.Popen([sys.executable, "-m", "groundstation", "fly",
-                                 str(config_with(tmp_path, endpoint="tcp/127.0.0.1:7672")), "--log", str(log),
+                                 str(config_with(tmp_path, endpoint="tcp/127.0.0.1:8672")), "--log", str(log),
                                  "--json", "--duration", "2"], stdin=slave, stdout=out, stderr=slave, cwd=ROOT,
                                 start_new_session=True,  # a session of its own, the terminal its controlling one
                                 preexec_fn=lambda: fcntl.ioctl(0, termios.TIOCSCTTY, 0))
@@ -386,7 +386,7 @@ def f_terminal_hangs_up_in_flight(cli, tmp_path):
                "SIGTTIN and SIGTTOU ignored, SIGTSTP a landing like Ctrl-C; exit 0")
 def f_sigtstp_in_flight(cli, tmp_path):
     stops = [signal.SIGTTIN, signal.SIGTTOU, signal.SIGTSTP]
-    _landed(*_signalled_in_flight(cli, tmp_path, stops, 7669, signal.SIGTSTP), signal.SIGTSTP)
+    _landed(*_signalled_in_flight(cli, tmp_path, stops, 8669, signal.SIGTSTP), signal.SIGTSTP)
 
 
 @process_fault("SIGTERM, Ctrl-C and SIGHUP, one every 2 ms, from the flight's summary until the process has "
@@ -395,7 +395,7 @@ def f_sigtstp_in_flight(cli, tmp_path):
                "in that time ended the process 143 or 130 after a summary saying done")
 def f_signals_after_the_flight(cli, tmp_path):
     log = tmp_path / "ended.mcap"
-    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7676"), log, "--duration", "1")
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:8676"), log, "--duration", "1")
     sent = 0
     try:
         _wait_until(lambda: "log: " in proc.output_paths[1].read_text(), proc, "printed its summary")
@@ -419,7 +419,7 @@ def f_signals_after_the_flight(cli, tmp_path):
                "the flight process had died); neither complete")
 def f_replay_during_the_flight(cli, tmp_path):
     log, copy = tmp_path / "live.mcap", tmp_path / "copy.mcap"
-    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), log)
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:8671"), log)
     try:
         _wait_until(lambda: _airborne(log), proc, "airborne")
         r = _replayed(cli, log)
@@ -439,7 +439,7 @@ def f_replay_during_the_flight(cli, tmp_path):
                "log has no end (never a plain end)")
 def f_sigkill_in_flight(cli, tmp_path):
     log = tmp_path / "killed.mcap"
-    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:7661"), log)
+    proc = _fly_process(config_with(tmp_path, endpoint="tcp/127.0.0.1:8661"), log)
     try:
         _wait_until(lambda: _airborne(log), proc, "airborne")
         writer = _writer_of(log)
@@ -465,7 +465,7 @@ def f_loop_crash(cli, tmp_path):
             raise ZeroDivisionError("division by zero")
 
     with pytest.raises(ZeroDivisionError):
-        fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7662"), duration=2.0, log_path=log, on_period=bug)
+        fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8662"), duration=2.0, log_path=log, on_period=bug)
     r = _replayed(cli, log)
     assert r["complete"] and r["phase"] == "emergency"
     assert r["reason"] == "the control loop crashed: ZeroDivisionError: division by zero"
@@ -501,7 +501,7 @@ def _hung_writer(cli, tmp_path, log: Path, cfg: Path, hang, resume) -> None:
                f"seen within {WRITER_STALL_S:g} s (the watchdog's bound), failsafe landing (on_log_failure), exit 1; "
                "resumed, the writer finishes the file")
 def f_log_writer_stopped(cli, tmp_path):
-    _hung_writer(cli, tmp_path, tmp_path / "stopped.mcap", config_with(tmp_path, endpoint="tcp/127.0.0.1:7663"),
+    _hung_writer(cli, tmp_path, tmp_path / "stopped.mcap", config_with(tmp_path, endpoint="tcp/127.0.0.1:8663"),
                  lambda pid: os.kill(pid, signal.SIGSTOP), lambda pid: os.kill(pid, signal.SIGCONT))
 
 
@@ -539,7 +539,7 @@ def f_log_disk_frozen(cli, tmp_path):
             subprocess.run(["fsfreeze", "-u", str(disk)], capture_output=True)
 
         log = disk / "frozen.mcap"
-        _hung_writer(cli, tmp_path, log, config_with(tmp_path, endpoint="tcp/127.0.0.1:7664"), freeze, thaw)
+        _hung_writer(cli, tmp_path, log, config_with(tmp_path, endpoint="tcp/127.0.0.1:8664"), freeze, thaw)
         kept = shutil.copy(log, tmp_path / "kept.mcap")
     kept = analyse(kept)  # the file whole and readable off the disk, without the flight's end
     assert kept.metrics.periods > 0 and kept.metrics.reason == NO_END and kept.warnings == ()
@@ -556,7 +556,7 @@ def f_bad_pose_stamps(cli, tmp_path):
         faults.pose_stamp = bad[int(t * 10) % len(bad)] if 3.5 < t < 4.5 else None
 
     log = tmp_path / "stamps.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7665"), duration=2.0, log_path=log, faults=faults,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8665"), duration=2.0, log_path=log, faults=faults,
               on_period=stamps)
     assert res.phase == "done" and res.nominal and res.log_error is None, res.reason
     assert set(res.log_rejected) == {"/mocap/assembly publish time"} and res.log_rejected[
@@ -573,7 +573,7 @@ def f_bad_pose_stamps(cli, tmp_path):
                "attitude noise; the dry run measures ~3 deg)",
                "the summary names the bound passed (attitude error p95 > 0.1 deg), exit 3")
 def f_degraded_beyond_quality_bound(cli, tmp_path):
-    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:7666")
+    cfg = config_with(tmp_path, endpoint="tcp/127.0.0.1:8666")
     cfg.write_text(cfg.read_text() + "\n[quality]\nattitude_error_p95_deg = 0.1\n")
     log = tmp_path / "soft.mcap"
     code, out, err = cli("fly", str(cfg), "--duration", "2", "--log", str(log), "--json")
@@ -598,7 +598,7 @@ def f_log_directory_removed_in_flight(cli, tmp_path):
             removed.append(t)
             shutil.rmtree(logs)
 
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7670"), duration=2.0, log_path=logs / "gone.mcap",
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8670"), duration=2.0, log_path=logs / "gone.mcap",
               on_period=remove)
     assert removed and res.phase == "done" and res.reason == "", res.reason
     assert not res.nominal and res.log_error.endswith("was removed or renamed during the flight"), res.log_error
@@ -619,7 +619,7 @@ def f_log_replaced_in_flight(cli, tmp_path):
             log.unlink()
             shutil.copy(other, log)
 
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), duration=2.0, log_path=log, on_period=replace)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8671"), duration=2.0, log_path=log, on_period=replace)
     assert replaced and res.phase == "done" and res.reason == "", res.reason
     assert not res.nominal and res.log_error == (f"{log} is another file now: this flight's log was removed or "
                                                  f"replaced during the flight"), res.log_error
@@ -639,7 +639,7 @@ def f_log_truncated_in_flight(cli, tmp_path):
             cut.append(t)
             os.truncate(log, 0)
 
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7671"), duration=2.0, log_path=log, on_period=truncate)
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8671"), duration=2.0, log_path=log, on_period=truncate)
     assert cut and not res.nominal and "truncated or overwritten by another process" in (res.log_error or ""), \
         (res.phase, res.reason, res.log_error)
     assert res.phase == "done" and res.reason.startswith("log writer failed: OSError: the log file was truncated")

@@ -14,11 +14,11 @@ from groundstation.errors import PreflightError
 from groundstation.runtime.fly import fly
 from tests.faults.table import link_or_load, rows
 from tests.faults.test_fault_table import _max_tilt_deg, _records
-from tests.peers import ROOT, host_freezes, peer_process, raise_if_stopped_by_host, world_priority
+from tests.peers import ROOT, ended_at_exit, host_freezes, peer_process, raise_if_stopped_by_host, world_priority
 from tests.runtime.test_fly import read_log, sitl_config
 
-PX4_PEER, PX4_RELAY, PX4_MOCAP = 19974, 19978, "tcp/127.0.0.1:7711"
-CF_PEER, CF_RELAY, CF_MOCAP = 19982, 19986, "tcp/127.0.0.1:7712"
+PX4_PEER, PX4_RELAY, PX4_MOCAP = 22974, 22978, "tcp/127.0.0.1:8711"
+CF_PEER, CF_RELAY, CF_MOCAP = 22982, 22986, "tcp/127.0.0.1:8712"
 
 
 @contextlib.contextmanager
@@ -28,24 +28,20 @@ def _slowed(tmp_path, kind: str, links: int, **faults):
     peer_port, relay_port, mocap = (PX4_PEER, PX4_RELAY, PX4_MOCAP) if kind == "mavlink" else (CF_PEER, CF_RELAY,
                                                                                                  CF_MOCAP)
     args = [f"--{k.replace('_', '-')}" + ("" if v is True else f"={v}") for k, v in faults.items()]
-    procs = [subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(relay_port), "--target",
-                               str(peer_port), "--links", str(links), *args], stdout=subprocess.DEVNULL,
-                              preexec_fn=world_priority)]
     extra = (["--protocol", "mavlink", "--params", str(ROOT / "firmware_params/px4/module_params.toml")]
              if kind == "mavlink" else ["--params", str(ROOT / "firmware_params/crazyflie.toml")])
-    procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(peer_port),
-                              "--mocap", mocap, *extra))
-    try:
+    with ended_at_exit() as procs:
+        procs.append(subprocess.Popen([sys.executable, "-m", "sim.udp_relay", "--listen", str(relay_port), "--target",
+                                       str(peer_port), "--links", str(links), *args], stdout=subprocess.DEVNULL,
+                                      preexec_fn=world_priority))
+        procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(peer_port),
+                                  "--mocap", mocap, *extra))
         cfg = sitl_config(tmp_path, kind, peer_port, mocap)
         text = cfg.read_text()
         for i in range(links):  # link i through the relay
             text = text.replace(f"127.0.0.1:{peer_port + i}\"", f"127.0.0.1:{relay_port + i}\"")
         cfg.write_text(text)
         yield cfg
-    finally:
-        for p in procs:
-            p.terminate()
-            p.wait(10)
 
 
 def _last_height_m(log) -> float:
@@ -84,7 +80,7 @@ def f_px4_link_8ms_in_flight(cli, tmp_path):
 def f_px4_link_30ms_from_the_start(cli, tmp_path):
     with _slowed(tmp_path, "mavlink", 2, delay_ms=30) as cfg:
         log = tmp_path / "px4-late.mcap"
-        with pytest.raises(PreflightError, match=r"module 0 \(udpout:127.0.0.1:19978\) link round trip \d+ ms > "
+        with pytest.raises(PreflightError, match=r"module 0 \(udpout:127.0.0.1:22978\) link round trip \d+ ms > "
                                                  r"14 ms"):
             fly(cfg, log_path=log)
     assert "/control" not in read_log(log)[0]
@@ -123,6 +119,14 @@ def f_px4_relay_answering_timesync_for_the_module(cli, tmp_path):
 def f_crazyflie_links_swapped_in_flight(cli, tmp_path):
     # Measured: 13 deg (the modules hold their last command, the other's dropped by its token, until re-routed).
     _landed_on_a_bad_link(tmp_path, "crazyflie", 2, max_tilt_deg=30.0, named="re-routed", swap_after=6.0)
+
+
+@link_or_load("PX4: a relay swaps the two modules' links (both ways) in flight",
+              "each message goes to the module its system id names, whichever link it came on; each module's "
+              "commands go down the link its messages came on too: the flight says so and lands, upright, exit 1 "
+              "(before: each vehicle dropped the setpoints addressed to the other, a fall from ~1 m, 38 deg)")
+def f_px4_links_swapped_in_flight(cli, tmp_path):
+    _landed_on_a_bad_link(tmp_path, "mavlink", 2, max_tilt_deg=30.0, named="go down both", swap_after=6.0)
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

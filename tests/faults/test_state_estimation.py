@@ -22,15 +22,15 @@ from groundstation.runtime.fly import Faults, fly
 from tests.faults.table import Fault, estimate_fault, rows
 from tests.faults.test_fault_table import _records
 from tests.faults.test_process_faults import _replayed
-from tests.peers import ROOT, peer_process
+from tests.peers import ROOT, ended_at_exit, peer_process
 from tests.runtime.test_fly import SETTLE_S, TRACK_START_S, config_with, read_log, sitl_config
 
 LANDING = {"duration = 16.0\n": "duration = 16.0\nlanding_s = 1.5\n"}
 """The rows that judge a landing (upright, on the ground) land in 1.5 s, not the test flights' 1 s: one gyro or
 no mocap on a 1 m/s descent tipped the V 16 deg."""
 
-PEER_PORT = 19920
-MOCAP_PORT, RELAY_PORT = 7533, 7534
+PEER_PORT = 22920
+MOCAP_PORT, RELAY_PORT = 8533, 8534
 
 
 def _tilt_deg(q) -> float:
@@ -84,22 +84,19 @@ def _cuttable(tmp_path, *relay_args: str, keyed: bool = False):
     SIGUSR1 cuts it for 300 ms, SIGUSR2 starts the delay ``relay_args`` give), ``keyed``: the mocap authenticated;
     yields the flight config and the relay process."""
     key = write_key_file(tmp_path / "mocap.key") if keyed else None
-    relay = subprocess.Popen([sys.executable, "-m", "sim.tcp_relay", "--listen", str(RELAY_PORT), "--target",
-                              str(MOCAP_PORT), "--cut-for", "0.3", *relay_args], stdout=subprocess.PIPE, text=True)
-    peer = peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
-                        "--mocap", f"tcp/127.0.0.1:{MOCAP_PORT}", "--params",
-                        str(ROOT / "firmware_params/crazyflie.toml"),
-                        *(("--mocap-key-file", str(key)) if keyed else ()))
-    try:
+    with ended_at_exit() as procs:
+        relay = subprocess.Popen([sys.executable, "-m", "sim.tcp_relay", "--listen", str(RELAY_PORT), "--target",
+                                  str(MOCAP_PORT), "--cut-for", "0.3", *relay_args], stdout=subprocess.PIPE, text=True)
+        procs.append(relay)
+        procs.append(peer_process(tmp_path, str(ROOT / "configs/assemblies/toy_v2.json"), "--port", str(PEER_PORT),
+                                  "--mocap", f"tcp/127.0.0.1:{MOCAP_PORT}", "--params",
+                                  str(ROOT / "firmware_params/crazyflie.toml"),
+                                  *(("--mocap-key-file", str(key)) if keyed else ())))
         assert relay.stdout.readline().strip() == "ready"
         cfg = sitl_config(tmp_path, "crazyflie", PEER_PORT, f"tcp/127.0.0.1:{RELAY_PORT}")
         if keyed:
             cfg.write_text(cfg.read_text().replace("[mocap]\n", f'[mocap]\nkey_file = "{key}"\n'))
         yield cfg, relay
-    finally:
-        for p in (peer, relay):
-            p.terminate()
-            p.wait(10)
 
 
 def _relayed_flight(cfg, relay, sig: int, at: float, duration: float, log):
@@ -165,7 +162,7 @@ def f_mocap_held_back_from_the_start(cli, tmp_path):
     with _cuttable(tmp_path, "--delay-growth", "1e9", "--delay-max", "60", keyed=True) as (cfg, relay):
         relay.send_signal(signal.SIGUSR2)  # the delay from before the first sample
         with pytest.raises(PreflightError, match=r"mocap does not see 'assembly' on mocap/assembly/pose via "
-                                                 r"tcp/127.0.0.1:7534: \d+ samples arrived and were refused as late "
+                                                 r"tcp/127.0.0.1:8534: \d+ samples arrived and were refused as late "
                                                  r"\(last: echoes a challenge (\d+) ms old\)") as refused:
             fly(cfg, duration=4.0, log_path=log)
     age = int(re.search(r"echoes a challenge (\d+) ms old", str(refused.value)).group(1))
@@ -180,7 +177,7 @@ def f_mocap_held_back_from_the_start(cli, tmp_path):
 def f_mocap_blackout_1s(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "blackout.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7535", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8535", **LANDING), duration=4.0, log_path=log,
               faults=faults,
               on_period=lambda t: setattr(faults, "mocap_paused", TRACK_START_S + 2.5 <= t < TRACK_START_S + 3.5))
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
@@ -206,7 +203,7 @@ def f_mocap_lost_2m_up(cli, tmp_path):
     takeoff_s = 2.0  # to 2 m in the test flights' 1 s asks for more thrust than the V has
     changes = {"height = 1.0": "height = 2.0", "duration = 16.0\n": f"duration = 16.0\ntakeoff_s = {takeoff_s}\n"}
     lost_at = takeoff_s + SETTLE_S + 1.0
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536", **changes), duration=3.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8536", **changes), duration=3.0, log_path=log,
               faults=faults, on_period=lambda t: setattr(faults, "mocap_paused", t >= lost_at))
     assert res.phase == "done" and "landing blind" in res.reason, res.reason
     assert any(text.startswith("landing -> done: landed blind (the height's std 0.") for *_, text in res.events)
@@ -240,14 +237,14 @@ def _blind_from_the_takeoff(tmp_path, port: int, name: str, start: float, end: f
                 "ground; touches down upright under 0.85 m/s, 'landed blind', exit 1 (it climbed to 2.9 m and the "
                 "motors stopped 2.85 m up)")
 def f_mocap_lost_in_the_takeoff(cli, tmp_path):
-    _blind_from_the_takeoff(tmp_path, 7555, "mocap_paused", 0.3, 1e9)
+    _blind_from_the_takeoff(tmp_path, 8555, "mocap_paused", 0.3, 1e9)
 
 
 @estimate_fault("mocap: the pose frozen (freshly stamped) from 0.3 to 0.5 s of a 1 s take-off (dry run)",
                 "every pose rejected: a blind landing that fuses no pose again (frozen, swapped, forged or broken), "
                 "as when the poses stop; touches down upright under 0.85 m/s, exit 1 (motors off 2.4 m up)")
 def f_mocap_frozen_in_the_takeoff(cli, tmp_path):
-    _blind_from_the_takeoff(tmp_path, 7556, "mocap_frozen", 0.3, 0.5)
+    _blind_from_the_takeoff(tmp_path, 8556, "mocap_frozen", 0.3, 0.5)
 
 
 @estimate_fault("mocap: no pose from 0.3 s before the touchdown of a 1 s planned landing, for good (dry run)",
@@ -257,7 +254,7 @@ def f_mocap_frozen_in_the_takeoff(cli, tmp_path):
 def f_mocap_lost_before_the_touchdown(cli, tmp_path):
     faults = Faults()
     log = tmp_path / "touchdown.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7557"), duration=3.0, log_path=log, faults=faults,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8557"), duration=3.0, log_path=log, faults=faults,
               on_period=lambda t: setattr(faults, "mocap_paused", t >= TRACK_START_S + 3.0 + 0.25 + 0.7))
     assert res.phase == "done" and res.reason.startswith("mocap stale"), res.reason
     truth = _truth(log)
@@ -288,7 +285,7 @@ def _bridge_restarted(tmp_path, port: int, keyed: bool):
                 "a blind landing while the poses are stale; the new publisher, holding the key, becomes the source "
                 "(an event names it) and the landing goes on on its poses; touches down upright, exit 1")
 def f_mocap_bridge_restarted_keyed(cli, tmp_path):
-    res, log, stats = _bridge_restarted(tmp_path, 7538, keyed=True)
+    res, log, stats = _bridge_restarted(tmp_path, 8538, keyed=True)
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
     assert stats["handovers"] == 1 and stats["foreign"] == 0, stats
     texts = [e["text"] for e in _replayed(cli, log)["events"]]
@@ -305,7 +302,7 @@ def f_mocap_bridge_restarted_keyed(cli, tmp_path):
                 "anyone could be the new publisher: never taken, a mocap fault (a second publisher) named in the "
                 "blind landing the stale poses began; it touches down upright, exit 1")
 def f_mocap_bridge_restarted_unkeyed(cli, tmp_path):
-    res, log, stats = _bridge_restarted(tmp_path, 7539, keyed=False)
+    res, log, stats = _bridge_restarted(tmp_path, 8539, keyed=False)
     assert res.phase == "done" and res.reason.startswith("mocap stale") and "landing blind" in res.reason
     assert stats["handovers"] == 0 and stats["foreign"] > 0, stats
     named = [text for _, _, text in res.events if text.startswith("mocap fault: a second publisher")]
@@ -334,14 +331,14 @@ def _landed_blind_from_the_plans_landing(res, log, reason: str) -> None:
                 "named, the landing goes on blind (not the plan's 1.5 s from 1 m on a "
                 "frozen estimate: it touched down at 0.9 m/s, reported as planned); touches down upright, exit 1")
 def f_mocap_stale_in_the_plans_landing(cli, tmp_path):
-    _landed_blind_from_the_plans_landing(*_faulted_in_the_plans_landing(tmp_path, 7540, "mocap_paused"),
+    _landed_blind_from_the_plans_landing(*_faulted_in_the_plans_landing(tmp_path, 8540, "mocap_paused"),
                                          "mocap stale")
 
 
 @estimate_fault("mocap: every pose not a number from 0.3 s into the plan's own landing (dry run)",
                 "the estimator's fault named, the landing goes on blind; touches down upright, exit 1")
 def f_mocap_fault_in_the_plans_landing(cli, tmp_path):
-    _landed_blind_from_the_plans_landing(*_faulted_in_the_plans_landing(tmp_path, 7541, "corrupt_pose"),
+    _landed_blind_from_the_plans_landing(*_faulted_in_the_plans_landing(tmp_path, 8541, "corrupt_pose"),
                                          "mocap fault: every pose rejected for ")
 
 
@@ -352,7 +349,7 @@ def f_shove_10n(cli, tmp_path):
     faults = Faults()
     at = TRACK_START_S + 1.5
     log = tmp_path / "shove.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7542", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8542", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=lambda t: setattr(faults, "push_n", (10.0, 0.0, 0.0) if at <= t < at + 0.1
                                                          else None))
     assert res.phase == "done", res.reason
@@ -366,7 +363,7 @@ def f_mocap_frozen_pose(cli, tmp_path):
     faults = Faults()
     on_period, frozen = _injected(faults, "mocap_frozen", True)
     log = tmp_path / "frozen.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7536", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8536", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("mocap fault: every pose rejected for ")
     assert "a frozen stream" in res.reason
@@ -382,7 +379,7 @@ def f_gyro_failed(cli, tmp_path):
     faults = Faults()
     on_period, failed = _injected(faults, "gyro_failed", 1)
     log = tmp_path / "gyro.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7537", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8537", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("gyro fault: module 1's gyro disagrees with the other's")
     assert "left out of the body rate" in res.reason
@@ -430,7 +427,7 @@ def f_gyros_nan_then_a_pose_gap(cli, tmp_path):
         faults.mocap_paused = at + 0.3 <= t < at + 0.5
 
     log = tmp_path / "gap.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7571", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8571", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     assert res.phase == "done" and res.reason.startswith("gyro fault: every module's gyro is not a number")
     _touched_down_upright_within(log, 20.0)
@@ -440,7 +437,7 @@ def f_gyros_nan_then_a_pose_gap(cli, tmp_path):
                 "aborted before arming: the reason names the gyros; exit 1")
 def f_gyros_nan_before_takeoff(cli, tmp_path):
     log = tmp_path / "ground.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7572", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8572", **LANDING), duration=4.0, log_path=log,
               faults=Faults(gyros_stuck=float("nan")))
     assert res.phase == "aborted" and res.reason == ("gyro fault before take-off: every module's gyro is not a "
                                                      "number: no body rate, the attitude from the poses alone")
@@ -473,7 +470,7 @@ def f_gyros_flipped_before_touchdown(cli, tmp_path):
     landing_starts = TRACK_START_S + 2.0 + SETTLE_S
     on_period, flipped = _injected(faults, "gyros_flipped", True, landing_starts + 1.3)
     log = tmp_path / "touchdown.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7574", **LANDING), duration=2.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8574", **LANDING), duration=2.0, log_path=log,
               faults=faults, on_period=on_period)
     assert flipped and res.phase == "done", res.reason
     ended = [t for t, _, text in res.events if text.endswith("above the ground: the landing ends here, motors off")]
@@ -488,7 +485,7 @@ def f_gyros_flipped_before_touchdown(cli, tmp_path):
 def f_gyros_flipped_and_a_push_in_the_takeoff(cli, tmp_path):
     faults = Faults(gyros_flipped=True)
     log = tmp_path / "pushed.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7575"), duration=3.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8575"), duration=3.0, log_path=log,
               faults=faults, on_period=lambda t: setattr(faults, "push_n", (5.0, 0.0, 0.0) if 0.3 <= t < 0.5
                                                          else None))
     assert res.phase == "done" and res.reason.startswith(
@@ -502,7 +499,7 @@ def _gyros_flipped(tmp_path, at: float, within: float) -> None:
     faults = Faults()
     on_period, flipped = _injected(faults, "gyros_flipped", True, at)
     log = tmp_path / "flipped.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7573", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8573", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     why = "gyro fault: every module's gyro turns against the commanded torque (slope "
     assert res.phase == "done" and res.reason.startswith(why), res.reason
@@ -517,7 +514,7 @@ def _gyros_failed_alike(tmp_path, value: float, what: str | tuple[str, ...], at:
     faults = Faults()
     on_period, failed = _injected(faults, "gyros_stuck", value, at)
     log = tmp_path / "gyros.mcap"
-    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:7569", **LANDING), duration=4.0, log_path=log,
+    res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8569", **LANDING), duration=4.0, log_path=log,
               faults=faults, on_period=on_period)
     whats = (what,) if isinstance(what, str) else what
     assert res.phase == "done" and any(res.reason.startswith(f"gyro fault: every module's gyro {w}") for w in whats), \
