@@ -2,7 +2,7 @@
 
     python -m sim.udp_relay --listen 19950 --target 19850 --links 2 --delay-ms 30 [--loss 0.02]
                             [--duplicate 0.2] [--reorder 0.2 --reorder-ms 10] [--after 6] [--seed 1]
-                            [--answer-timesync] [--swap-after 8]
+                            [--answer-timesync] [--swap-after 8 [--swap-way answers]]
 
 Link i relays ``127.0.0.1:<listen + i>`` (what the ground station talks to) to ``127.0.0.1:<target + i>`` (a
 simulated module from ``groundstation sim-peer``) and the replies back. Every packet, in either direction, is
@@ -12,7 +12,9 @@ seconds after the first packet (a link that degrades mid-flight). With ``--answe
 relay, once its faults start, answers the ground station's ``TIMESYNC`` probes itself at once, on the module's
 clock as the module's newest ``ATTITUDE`` showed it, and keeps them from the module: a hostile relay hiding what it
 holds back. With ``--swap-after`` the links trade places that long after the first packet: link i then reaches
-module i + 1 (the last, module 0), both ways. Runs until SIGTERM/SIGINT and then prints how many packets it
+module i + 1 (the last, module 0), both ways, or with ``--swap-way`` only the commands' way (link i's packets go to
+module i + 1, whose answers still come on link i + 1) or only the answers' (module i's answers come on link i - 1,
+the commands still reach their module). Runs until SIGTERM/SIGINT and then prints how many packets it
 relayed, dropped, duplicated, reordered and answered as one JSON line.
 """
 
@@ -48,6 +50,8 @@ class Faults:
     """Answer MAVLink ``TIMESYNC`` probes in the module's name (see the module docstring)."""
     swap_after_s: float = float("inf")
     """The links trade places this long after the first packet, s (see the module docstring)."""
+    swap_way: str = "both"
+    """Which way the swap takes: "both", "commands" or "answers"."""
 
 
 @dataclass
@@ -136,6 +140,12 @@ class UdpRelay:
             return None
         return self._forgers[link].answer(data, now)
 
+    def _swapped(self, now: float) -> tuple[int, int]:
+        """(commands' way, answers' way): 1 where link i reaches module i + 1 that way, else 0."""
+        on = int(self._started is not None and now - self._started >= self.faults.swap_after_s)
+        way = self.faults.swap_way
+        return on * (way in ("both", "commands")), on * (way in ("both", "answers"))
+
     def run(self) -> Counts:
         socks = self._front + self._back
         while self._running:
@@ -156,15 +166,16 @@ class UdpRelay:
                     if forged is not None:
                         s.sendto(forged, addr)
                         self.counts.answered += 1
-                    else:
-                        swapped = self._started is not None and now - self._started >= self.faults.swap_after_s
-                        self._schedule(now, self._back[i], data, self._targets[(i + swapped) % len(self._targets)])
+                    else:  # to module i, or i + 1 when the commands' way is swapped, from its own socket
+                        t = (i + self._swapped(now)[0]) % len(self._targets)
+                        self._schedule(now, self._back[t], data, self._targets[t])
                 else:
-                    i = self._back.index(s)
+                    i = self._back.index(s)  # module i's
                     if self._forgers:
                         self._forgers[i].from_module(data, now)
-                    if self._client[i] is not None:
-                        self._schedule(now, self._front[i], data, self._client[i])
+                    f = (i - self._swapped(now)[1]) % len(self._front)
+                    if self._client[f] is not None:
+                        self._schedule(now, self._front[f], data, self._client[f])
             while q and q[0][0] <= time.monotonic():
                 _, _, sock, data, addr = heapq.heappop(q)
                 try:
@@ -193,10 +204,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="answer MAVLink TIMESYNC probes in the module's name, on its clock (a hostile relay)")
     ap.add_argument("--swap-after", type=float, default=float("inf"),
                     help="the links trade places this long after the first packet, s (link i reaches module i+1)")
+    ap.add_argument("--swap-way", choices=("both", "commands", "answers"), default="both",
+                    help="which way --swap-after swaps: both, only the commands' or only the answers'")
     a = ap.parse_args(argv)
     relay = UdpRelay(a.listen, a.target, a.links,
                      Faults(a.delay_ms * 1e-3, a.loss, a.duplicate, a.reorder, a.reorder_ms * 1e-3, a.after,
-                            a.answer_timesync, a.swap_after), a.seed)
+                            a.answer_timesync, a.swap_after, a.swap_way), a.seed)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, relay.stop)
     c = relay.run()

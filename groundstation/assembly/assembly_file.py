@@ -143,8 +143,12 @@ def checked_record(record, src: str) -> tuple[Assembly, CheckedDesign | None]:
 def _numbers(value, src: str, key: str, shape: tuple[int | None, ...], finite: bool = True) -> np.ndarray:
     """``value`` as a float array of ``shape`` (``None``: any length there), finite unless told; else a ConfigError
     naming ``key``."""
+    if (written := _not_a_number(value)) is not None:  # numpy takes "0.24" and true as numbers
+        raise ConfigError(f"not a number: {json.dumps(written)}", path=src, key=key)
     try:
         arr = np.asarray(value, dtype=float)
+    except OverflowError:  # an integer past any float (10**400)
+        raise ConfigError("a number too large for any float", path=src, key=key) from None
     except (TypeError, ValueError):
         raise ConfigError("not numeric (or rows of unequal length)", path=src, key=key) from None
     fits = arr.ndim == len(shape) and all(want is None or got == want for got, want in zip(arr.shape, shape,
@@ -227,7 +231,22 @@ def _figure_tolerances(ver: Verification) -> dict[str, float]:
 
 
 def _is_number(x) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool)
+    """A finite float or an integer one converts to (a stored cost of 10**400 failed in ``math.isclose``)."""
+    if not isinstance(x, int | float) or isinstance(x, bool):
+        return False
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
+
+
+def _not_a_number(value) -> object | None:
+    """The first boolean or string in ``value`` (nested lists), as written; None if there is none."""
+    if isinstance(value, bool | str):
+        return value
+    if isinstance(value, list | tuple):
+        return next((found for v in value if (found := _not_a_number(v)) is not None), None)
+    return None
 
 
 def _check_design(record: dict, assembly: Assembly, src: str) -> CheckedDesign:
@@ -249,6 +268,8 @@ def _check_design(record: dict, assembly: Assembly, src: str) -> CheckedDesign:
                           f"{'infeasible' if failures else 'feasible'}: {why}", path=src, key="feasible")
     cost = input_cost(u, weights)
     stored = record["cost"]
+    if isinstance(stored, int) and not isinstance(stored, bool) and not _is_number(stored):
+        raise ConfigError("a number too large for any float", path=src, key="cost")
     if record["feasible"] != _is_number(stored) or (
             record["feasible"] and not math.isclose(stored, cost, rel_tol=COST_RTOL)):
         raise ConfigError(f"says {stored!r}, but the inputs cost {cost:.10g}" if record["feasible"] else

@@ -60,8 +60,9 @@ class Telemetry:
     (disarmed, locked, crashed, restarted, taking another sender's commands; latched for the rest of the flight),
     or it sends no state (while it is silent); empty when the backend cannot tell."""
     rerouted: str = ""
-    """How the backend re-routed its links in flight, because one reached another module than its own ("" if it
-    never did): the links are not what preflight checked, so the flight lands."""
+    """How the links stopped being what preflight checked, in flight ("" while they are): re-routed because one
+    reached another module than its own, or a module no longer answering the claims that would show it; the flight
+    lands."""
 
 
 def bounded_command(u: np.ndarray, u_max: float) -> np.ndarray:

@@ -79,6 +79,12 @@ overtaken on the link; farther, the module restarted its counts."""
 ECHO_WINDOW = 1000
 """A module flying on a command this backend sent is echoing one of its newest sequence numbers (4 s at 250 Hz);
 an echo outside them is another sender's command (its sequence numbers ahead of ours, so the module drops ours)."""
+CLAIM_SILENCE_S = 0.25
+"""In flight, a module whose claim answers stopped this long (five claims) can no longer be shown to be on its link:
+the flight lands (a relay that holds the answers back would otherwise hide a swap that follows), s."""
+STARVED_STATES = 5
+"""A module whose states report this many batches in a row of only dropped commands gets none of ours with its
+token: after a re-route, the commands' way was swapped too (its partner's link carries them)."""
 IDENTITY_PERIOD_S = 0.05
 """In flight each module is claimed again this often (the same session keeps its token; the answer names the
 module): a link that reaches another module than its own is found within a period of this and a round trip, s.
@@ -261,6 +267,17 @@ class _Module:
         """The newest answer to a claim."""
         self.uid = ""
         """The unique id of the module this link reached at the end of preflight (hex; "" before)."""
+        self.seen_uid = ""
+        """The unique id in the newest claim answer on this module's way in (hex)."""
+        self.answered = -np.inf
+        """When the newest claim answer came on this module's way in, s."""
+        self.starved = 0
+        """States in a row that report only dropped commands (none of ours accepted)."""
+        self.claims_silent = False
+        """Its claims' silence was said (once a flight)."""
+        self.partner: int | None = None
+        """The module whose way in this one's traded places with (a re-route), until their commands' ways are
+        settled too."""
         self.token = 0
         """The token the module gave this backend's session (0: not claimed)."""
         self.unknown = 0
@@ -321,7 +338,10 @@ class CrazyflieBackend(BackendBase):
         self._identity_sent = -np.inf
         """When the modules were last claimed in flight, s."""
         self.rerouted = ""
-        """How the links were re-routed in flight ("" if never): a link reached another module than its own."""
+        """How the links stopped being what preflight checked, in flight ("" if never): re-routed, a module's claims
+        unanswered."""
+        self._traded = False
+        """The commands' ways of two modules were traded in flight (done once: a second would be a guess)."""
         self._locks = LinkLocks(self.uris)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -542,6 +562,8 @@ class CrazyflieBackend(BackendBase):
         self._disarm_requested = False
         for m in self._modules:
             m.fault = ""
+            m.answered = self._clock()  # the claim clock starts at arming (preflight's answers checked the links)
+            m.claims_silent = False
 
     def send(self, u: np.ndarray) -> None:
         """Command rotor inputs (4n,), rad^2/s^2; bounded to [0, u_max]; modules ignore them unless armed; isolated
@@ -597,6 +619,13 @@ class CrazyflieBackend(BackendBase):
         faults = tuple(m.fault or ("" if ok else f"sends no state ({_age_text(now - m.heard)}): link lost or the "
                                                  f"module is off")
                        for m, ok in zip(self._modules, fresh, strict=True))
+        if self._armed:
+            for i, m in enumerate(self._modules):
+                if i not in self._isolated and now - m.answered > CLAIM_SILENCE_S and not m.claims_silent:
+                    m.claims_silent = True
+                    seen = f" (its link last answered for {m.seen_uid})" if m.seen_uid != m.uid else ""
+                    self._note(f"module {i} ({self.uris[i]}, {m.uid}) has answered no claim "
+                               f"{_age_text(now - m.answered)}{seen}: its link can no longer be checked")
         return Telemetry(stamp=float(heard.max()) if heard.size and np.isfinite(heard).any() else 0.0,
                          link_ok=bool(counted) and bool(np.all(fresh[counted])),
                          gyro_age_s=float(now - heard[counted].min()) if counted else float("inf"),
@@ -734,7 +763,7 @@ class CrazyflieBackend(BackendBase):
                 data = bytes(pk.data)
                 if wire.same_port(pk.header, wire.APP_HEADER):
                     if data[:1] == bytes([wire.KIND_IDENTITY]):
-                        self._on_identity(i, m, data)
+                        self._on_identity(i, m, data, now)
                         continue
                     try:
                         st = wire.ModuleState.unpack(data)
@@ -750,33 +779,62 @@ class CrazyflieBackend(BackendBase):
             while m.samples and m.samples[0][0] < now - window:
                 m.samples.popleft()
 
-    def _on_identity(self, i: int, m: _Module, data: bytes) -> None:
+    def _on_identity(self, i: int, m: _Module, data: bytes, now: float) -> None:
         try:
             identity = wire.Identity.unpack(data)
         except ValueError:
             return
-        if m.uid and identity.uid_hex != m.uid:  # in flight, module i's link reached another module
+        m.seen_uid = identity.uid_hex
+        if m.uid and identity.uid_hex != m.uid:  # in flight, module i's way in brings another module's answers
             self._reroute(i, identity.uid_hex)
             return
+        m.answered = now
         m.identity = identity
         if identity.session == self.session:
             m.token = identity.token
 
     def _reroute(self, i: int, uid: str) -> None:
-        """Module i's link answered with module j's unique id: the links of i and j trade places (a relay swapped
-        them), so each module's commands (with its own token, which the other drops meanwhile) reach it again and
-        its states are its own; said in :attr:`rerouted`, which lands the flight. A link reaching a module that is
-        no other's is left alone: it loses its module's commands (dropped by their token), and its silence or stale
-        echoes stop the flight."""
+        """Module i's way in brought module j's answer: once j's brings i's (a relay swapped them; a link that
+        reaches a module already reached by its own is no swap, and the silence of the other's claims lands the
+        flight), the two ways in trade places, so each module's states are its own. Whether the commands' ways
+        were swapped too shows next: the states then report only dropped commands (each module drops the other's
+        token), and :meth:`_starved` trades the commands' ways as well. Said in :attr:`rerouted`, which lands the
+        flight."""
         j = next((k for k, other in enumerate(self._modules) if other.uid == uid), None)
-        if j is None or j == i:
+        if j is None or j == i or self._modules[j].seen_uid != self._modules[i].uid:
             return
         a, b = self._modules[i], self._modules[j]
-        a.driver, b.driver = b.driver, a.driver
-        a.sender, b.sender = b.sender, a.sender
         a.receive, b.receive = b.receive, a.receive
-        note = f"module {i}'s link ({self.uris[i]}) reached module {j} ({uid}): links {i} and {j} re-routed"
-        self.rerouted = f"{self.rerouted}; {note}" if self.rerouted else note
+        a.seen_uid, b.seen_uid = a.uid, b.uid
+        a.answered = b.answered = self._clock()
+        a.starved = b.starved = 0
+        a.partner, b.partner = j, i
+        self._note(f"module {i}'s link ({self.uris[i]}) brought module {j}'s answers ({uid}): links "
+                   f"{min(i, j)} and {max(i, j)} re-routed")
+
+    def _starved(self, i: int, m: _Module) -> None:
+        """Module i drops every command of ours (:data:`STARVED_STATES` states): its commands reach another module.
+        After a re-route, they go down its partner's link; else, when exactly one other module starves too (a relay
+        swapped only the commands' ways), down that one's, once a flight. Otherwise the module is faulty."""
+        others = [k for k, o in enumerate(self._modules) if k != i and o.starved > 0]
+        j = m.partner if m.partner is not None else (others[0] if len(others) == 1 and not self._traded else None)
+        if j is None and not others and m.starved < 2 * STARVED_STATES:
+            return  # the other may not have reported its first drop yet
+        if j is None:
+            m.fault = m.fault or (f"drops every command of ours ({m.starved} batches in a row): they reach it without "
+                                  f"its token")
+            return
+        a, b = m, self._modules[j]
+        a.sender, b.sender = b.sender, a.sender
+        a.partner = b.partner = None
+        a.starved = b.starved = 0
+        self._traded = True
+        self._note(f"modules {min(i, j)} and {max(i, j)} dropped every command: their commands' ways traded places "
+                   f"too")
+
+    def _note(self, note: str) -> None:
+        if note not in self.rerouted:
+            self.rerouted = f"{self.rerouted}; {note}" if self.rerouted else note
 
     def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float, arrived: float) -> None:
         """``arrived``: when the state reached this machine (the kernel's stamp), or on a driver that does not say,
@@ -792,6 +850,11 @@ class CrazyflieBackend(BackendBase):
                 return  # an older or repeated state: the newer one stands
             restarted = advance <= -REORDER_WINDOW
         m.state, m.heard = st, now
+        if self._armed and previous is not None and not restarted:
+            accepted = _signed16(st.received - previous.received)
+            m.starved = 0 if accepted > 0 else m.starved + (_signed16(st.dropped - previous.dropped) > 0)
+            if m.starved >= STARVED_STATES:
+                self._starved(i, m)
         if self._armed and not m.fault:
             m.fault = self._module_fault(st, restarted)
         # Only echoes of this backend's own commands measure the link (a module still echoes the previous

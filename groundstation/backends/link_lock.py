@@ -15,6 +15,7 @@ import hashlib
 import ipaddress
 import os
 import re
+import socket
 import tempfile
 from pathlib import Path
 
@@ -34,16 +35,29 @@ def link_key(uri: str) -> str:
     if m := _RADIO.match(u):
         return f"radio:{int(m['channel'])}:{(m['address'] or 'e7e7e7e7e7').lstrip('0') or '0'}"
     if m := _NETWORK.match(u):
-        host = m["v6"] if m["v6"] is not None else m["host"]
-        if host in ("localhost", "") or host.startswith("localhost."):
-            host = "127.0.0.1"
-        with contextlib.suppress(ValueError):
-            host = str(ipaddress.ip_address(host))
-        return f"ip:{host}:{int(m['port'])}"
+        return f"ip:{_address(m['v6'] if m['v6'] is not None else m['host'])}:{int(m['port'])}"
     device = raw.split(",")[0].split(":")[0]
-    if device.startswith("/"):
+    if device.startswith("/") or os.path.exists(device):
         return f"serial:{os.path.realpath(device)}"
     return u
+
+
+def _address(host: str) -> str:
+    """The address a link's host name or number reaches, as the link resolves it (``vm`` from /etc/hosts, ``127.1``,
+    ``0x7f000001``, ``2130706433`` are all 127.0.0.1: spelled so, they passed the lock, hostile campaign 31); every
+    loopback and the unspecified address (which reaches this host) are one: a module served here may listen on
+    any of them."""
+    try:
+        found = {info[4][0] for info in socket.getaddrinfo(host.rstrip(".") or "localhost", None,
+                                                          proto=socket.IPPROTO_UDP)}
+    except (OSError, UnicodeError):
+        return host  # not a name this host resolves: the link does not open either
+    addresses = set()
+    for a in found:
+        ip = ipaddress.ip_address(a.split("%")[0])
+        ip = ip.ipv4_mapped or ip if isinstance(ip, ipaddress.IPv6Address) else ip
+        addresses.add("loopback" if ip.is_loopback or ip.is_unspecified else str(ip))
+    return min(addresses)  # a name with several addresses: the link takes the first; any one names it alike
 
 
 def lock_dir() -> Path:

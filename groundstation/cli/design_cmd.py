@@ -73,7 +73,10 @@ def design_command(tasks: str, max_modules: int, min_modules: int, modules: str 
     results_path = writable_output(results, (".jsonl",)) if results else None
     fig_dir = Path(figures) if figures else None
     if fig_dir is not None:
-        fig_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            fig_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # a file there, a read-only or looping path
+            raise UsageError(f"--figures {figures}: cannot make the directory: {exc.strerror or exc}") from None
         writable_output(fig_dir / "fig1_assembly.png")
     params = load_module_params(modules) if modules else ModuleParams()
     task = load_task(tasks)

@@ -107,7 +107,11 @@ def sample_indices(g: np.ndarray, policy: SamplingPolicy, rng: np.random.Generat
         log_w = np.zeros_like(g)
     else:
         g0 = g.min() if policy.scheme == "compact" else g.max()
-        log_w = -((g - g0) ** 2) / (2.0 * policy.sigma**2)
+        # Scaled before squaring: sigma**2 overflowed a float from sigma 1e155 (hostile campaign 32). A tiny sigma
+        # gives the far ones -inf: drawn last, as their weights say.
+        with np.errstate(over="ignore"):
+            z = (g - g0) / policy.sigma
+            log_w = -0.5 * z * z
     keys = log_w + rng.gumbel(size=g.shape)
     chosen = np.argpartition(-keys, policy.keep - 1)[: policy.keep]
     return np.sort(chosen)

@@ -228,7 +228,12 @@ def read_results(path: Path) -> dict[str, SavedRow]:
 
 def _close(stored, recomputed: float, rel: float, abs_: float = 0.0) -> bool:
     """A stored number agrees with the recomputed one (``inf`` only with ``inf``; a non-number never)."""
-    return isinstance(stored, int | float) and math.isclose(stored, recomputed, rel_tol=rel, abs_tol=abs_)
+    if not isinstance(stored, int | float) or isinstance(stored, bool):
+        return False
+    try:
+        return math.isclose(stored, recomputed, rel_tol=rel, abs_tol=abs_)
+    except OverflowError:  # an integer past any float (10**400)
+        return False
 
 
 def _checked_design(record: dict | None, src: str, row: CandidateResult, task: Task, params: ModuleParams,

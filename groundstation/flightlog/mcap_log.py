@@ -710,6 +710,17 @@ class _Writer:
         if os.pread(fd, len(MAGIC), 0) != MAGIC:
             raise OSError(f"the log file was truncated or overwritten by another process (its first "
                           f"{len(MAGIC)} bytes are no longer MCAP's): what was written before is lost")
+        # Cut anywhere past its start, it grows on from where the writer was: the stretch cut away reads back as a
+        # hole (no data), which a log written straight through never has. (A file system without holes, which
+        # reports none, is not checked this way.)
+        end = os.lseek(fd, 0, os.SEEK_CUR)
+        try:
+            hole = os.lseek(fd, 0, os.SEEK_HOLE)
+        finally:
+            os.lseek(fd, end, os.SEEK_SET)
+        if hole < end:
+            raise OSError(f"the log file was truncated by another process (its bytes from {hole} on were cut, the "
+                          f"writer went on at {end}): what was written there is lost")
 
     def serve(self) -> None:
         """The live view's share of the writer's thread (called after every batch, and every :data:`POLL_S` without

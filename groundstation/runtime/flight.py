@@ -502,6 +502,8 @@ class Flight:
         """(flight time s, its reference, the attitude target of the reference alone) of the previous period."""
         self._mocap_fault_named = ""
         """The kind of mocap fault last seen (its text without the counts)."""
+        self._link_named = False
+        """A degraded link began or went into the landing (said once)."""
         self._gyro_fault_named = False
         self._gyros_lost_at: float | None = None
         """Since when no gyro has been usable (as :attr:`GyroAgreement.lost_since` said last period), s."""
@@ -738,8 +740,10 @@ class Flight:
             if severe or self.policy.on_link_degraded == "stop":
                 self._emergency(t, degraded)
                 return False
-            if self.phase.airborne and state is not None:
+            # In the plan's landing, named once (it goes on): a link re-routed there was otherwise never said.
+            if state is not None and (self.phase.airborne or (self.phase == Phase.LANDING and not self._link_named)):
                 self._begin_landing(t, state, degraded)
+                self._link_named = True
         fault = self.pose.fault() or est.fault()
         if fault:
             why = f"mocap fault: {fault}"

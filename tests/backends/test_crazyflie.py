@@ -1,6 +1,8 @@
 """The Crazyflie backend through its UDP links (cflib's wire, :mod:`test_udp_link`), against simulated modules
 that follow the firmware (supervisor arming, emergency-stop lock, the motor app's state stream and gate)."""
 
+import contextlib
+import threading
 import time
 
 import numpy as np
@@ -189,41 +191,75 @@ def test_unopenable_link():
         CrazyflieBackend(["udp://127.0.0.1:1", "udp://127.0.0.1:2"], ASM.params, ASM.module_rotations[:1])
 
 
-def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed():
-    """Fresh modules all give token 1: preflight claims again until each module's token is its own, so a command
-    down the wrong link is dropped. A relay that swaps the two links in flight (both ways): the next claim's answer
-    names the other module, the links trade places and each module flies its own commands again; said in the
-    telemetry (the flight lands on it)."""
-    import threading
-
+@contextlib.contextmanager
+def _relayed_peer(peer_port: int, relay_port: int, mocap_port: int, **faults):
+    """Simulated modules at ``peer_port`` behind an in-process ``sim.udp_relay`` at ``relay_port``."""
     from sim.udp_relay import Faults, UdpRelay
 
-    peer, th = start_peer(19760, 7502)
-    relay = UdpRelay(19764, 19760, 2, Faults(swap_after_s=3.0))
+    peer, th = start_peer(peer_port, mocap_port)
+    relay = UdpRelay(relay_port, peer_port, 2, Faults(**faults))
     relay_th = threading.Thread(target=relay.run, daemon=True)
     relay_th.start()
     try:
-        with backend(19764) as be:
-            assert be.preflight().ok
-            tokens = [peer.firmware(i).app.owner_token for i in range(2)]
-            assert tokens[0] != tokens[1] and all(tokens), tokens
-            be.arm()
-            u = np.array([0.2] * 4 + [0.4] * 4) * U_MAX  # each module's own command
-            hold(be, u, 0.2)
-            assert be.telemetry().rerouted == ""
-            applied = [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
-            deadline = time.monotonic() + 6.0  # the swap comes 3 s after the first packet
-            while not be.telemetry().rerouted and time.monotonic() < deadline:
-                hold(be, u, 0.05)
-            assert be.telemetry().rerouted == (
-                "module 0's link (udp://127.0.0.1:19764) reached module 1 "
-                f"({be.module_ids()[1]}): links 0 and 1 re-routed"), be.telemetry().rerouted
-            hold(be, u, 0.2)
-            now = [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
-            assert np.allclose(now, applied) and not np.allclose(now[0], now[1])  # each its own again
-            assert be.telemetry().link_ok and be.telemetry().module_faults == ("", "")
-            be.disarm()
+        yield peer
     finally:
         relay.stop()
         relay_th.join(2)
         stop_peer(peer, th)
+
+
+def _applied(peer) -> list[np.ndarray]:
+    return [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
+
+
+@pytest.mark.parametrize("way, port", [("both", 19760), ("answers", 19766), ("commands", 19778)])
+def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed(way, port):
+    """Fresh modules all give token 1: preflight claims again until each module's token is its own, so a command
+    down the wrong link is dropped. A relay swaps the two links in flight: the claims' answers name the other
+    modules, the ways in trade places (each module's states its own); where the commands' way was swapped too
+    (both ways), the modules then drop every command and the commands' ways trade places as well; where only the
+    answers' was, they stay; where only the commands' was, the answers say nothing and the two modules dropping every
+    command trade theirs. Each module flies its own commands again; said in the telemetry (the flight lands)."""
+    with _relayed_peer(port, port + 4, port - 12258, swap_after_s=3.0, swap_way=way) as peer, \
+            backend(port + 4) as be:
+        assert be.preflight().ok
+        tokens = [peer.firmware(i).app.owner_token for i in range(2)]
+        assert tokens[0] != tokens[1] and all(tokens), tokens
+        be.arm()
+        u = np.array([0.2] * 4 + [0.4] * 4) * U_MAX  # each module's own command
+        hold(be, u, 0.2)
+        assert be.telemetry().rerouted == ""
+        applied = _applied(peer)
+        deadline = time.monotonic() + 6.0  # the swap comes 3 s after the first packet
+        said = {"links 0 and 1 re-routed": way != "commands", "commands' ways traded places": way != "answers"}
+        while not all(s in be.telemetry().rerouted for s, due in said.items() if due) and time.monotonic() < deadline:
+            hold(be, u, 0.05)
+        rerouted = be.telemetry().rerouted
+        assert {s: s in rerouted for s in said} == said, rerouted
+        hold(be, u, 0.3)
+        assert be.telemetry().rerouted == rerouted  # settled: no more trading
+        now = _applied(peer)
+        assert np.allclose(now, applied) and not np.allclose(now[0], now[1])  # each its own again
+        assert be.telemetry().link_ok and be.telemetry().module_faults == ("", "")
+        be.disarm()
+
+
+def test_a_module_whose_claims_go_unanswered_in_flight_is_named():
+    """A relay that holds back one module's claim answers (to hide a swap that follows): 0.25 s later the flight
+    is told its link can no longer be checked, naming the module (it lands on it)."""
+    with _relayed_peer(19772, 19776, 7516) as peer, backend(19776) as be:
+        assert be.preflight().ok
+        be.arm()
+        u = np.full(8, 0.3 * U_MAX)
+        hold(be, u, 0.2)
+        firmware = peer.firmware(1)
+        answer = firmware._app_packet
+        firmware._app_packet = lambda body, now: [] if wire.Claim.unpack(body) else answer(body, now)
+        hold(be, u, 0.15)
+        assert be.telemetry().rerouted == ""  # three claims unanswered: not yet
+        hold(be, u, 0.3)
+        said = be.telemetry().rerouted
+        assert said.startswith(f"module 1 (udp://127.0.0.1:19777, {be.module_ids()[1]}) has answered no claim for "
+                               ) and said.endswith("ms: its link can no longer be checked"), said
+        assert be.telemetry().link_ok  # its states still come: a landing, not a stop
+        be.disarm()

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -52,12 +53,22 @@ def test_a_link_spelled_another_way_is_the_same_link():
     and only the modules' own checks kept it off: hostile campaign 30)."""
     for spellings in (["udp://127.0.0.1:19852", "udp://localhost:19852/1", " UDP://127.0.0.1:19852/"],
                       ["udpout:127.0.0.1:14590", "udpout:localhost:14590", "tcp:127.0.0.1:14590"],
-                      ["tcp:[::1]:5760", "tcp:[0:0::1]:5760"],
+                      ["tcp:[::1]:5760", "tcp:[0:0::1]:5760", "tcp:127.0.0.1:5760"],
+                      # the old numeric forms the link's resolver takes, the unspecified address, a trailing dot
+                      # (hostile campaign 31: each passed the lock)
+                      ["udp://127.1:19852", "udp://0x7f000001:19852", "udp://2130706433:19852", "udp://0177.0.0.1:19852",
+                       "udp://0.0.0.0:19852", "udp://0:19852", "udp://127.0.0.1.:19852", "udp://[::ffff:127.0.0.1]:19852",
+                       "udp://127.0.0.1:19852"],
                       ["radio://0/80/2M/E7E7E7E7E7", "radio://1/80/2M", "radio://0/80/250K/00E7E7E7E7E7"]):
         assert len({link_key(u) for u in spellings}) == 1, spellings
     assert link_key("radio://0/80/2M/E7E7E7E7E8") != link_key("radio://0/80/2M/E7E7E7E7E7")
     assert link_key("udp://127.0.0.1:19852") != link_key("udp://127.0.0.1:19853")
     assert link_key("/dev/ttyACM0:57600") == "serial:/dev/ttyACM0"  # a device's name keeps its case
+    assert link_key("udp://10.0.0.5:19852") == "ip:10.0.0.5:19852"
+    hosts = {line.split()[1] for line in Path("/etc/hosts").read_text().splitlines()
+             if line.split()[:1] == ["127.0.0.1"] and len(line.split()) > 1}
+    for name in hosts:  # a name /etc/hosts gives this host (the link resolves it so)
+        assert link_key(f"udp://{name}:19852") == link_key("udp://127.0.0.1:19852"), name
     holder = _holder("udp://127.0.0.1:19852")
     try:
         with pytest.raises(LinkError, match="is in use by another flight on this host"):

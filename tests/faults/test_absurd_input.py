@@ -7,6 +7,7 @@ is opened: no log file is made, nothing armed.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -256,6 +257,56 @@ def f_absurd_assembly_is_dev_zero(cli, tmp_path):
 def f_absurd_simulate_assembly_is_an_mcap_log(cli, tmp_path):
     mcap = _mcap(tmp_path)
     _refused(cli, ("simulate", str(mcap)), f"{mcap}: not a text file")
+
+
+def _toy_assembly_with(tmp_path, key: str, text: str) -> Path:
+    """The toy V's assembly file with ``key``'s value written as ``text`` (JSON as it stands in the file)."""
+    record = json.loads((ROOT / "configs/assemblies/toy_v2.json").read_text())
+    record[key] = "__VALUE__"
+    path = tmp_path / f"{key}.json"
+    path.write_text(json.dumps(record).replace('"__VALUE__"', text))
+    return path
+
+
+@bad_input("simulate an assembly whose yaw_deg, mass_kg or cost is 10**400 (an integer past any float)",
+           "exit 2 naming the file and key: too large for any float (before: an OverflowError traceback, exit 1)")
+def f_absurd_assembly_number_past_any_float(cli, tmp_path):
+    for key in ("yaw_deg", "mass_kg", "cost"):
+        asm = _toy_assembly_with(tmp_path, key, str(10**400))
+        _refused(cli, ("simulate", str(asm), "--duration", "1"), f"{asm}: {key}: a number too large for any float")
+
+
+@bad_input("simulate an assembly whose yaw_deg is false, mass_kg \"0.48\" or an angle a string",
+           "exit 2 naming the file and key: not a number (before: numpy took them as numbers and it flew)")
+def f_absurd_assembly_strings_and_booleans_for_numbers(cli, tmp_path):
+    angles = json.loads((ROOT / "configs/assemblies/toy_v2.json").read_text())["angles_deg"]
+    for key, text, said in (("yaw_deg", "false", "false"), ("mass_kg", '"0.48"', '"0.48"'),
+                            ("angles_deg", json.dumps([str(angles[0]), *angles[1:]]), f'"{angles[0]}"')):
+        asm = _toy_assembly_with(tmp_path, key, text)
+        _refused(cli, ("simulate", str(asm), "--duration", "1"), f"{asm}: {key}: not a number: {said}")
+
+
+@bad_input("design --figures naming a file that exists, or a path in a symlink loop",
+           "exit 2 naming --figures and why (before: a FileExistsError / OSError traceback, exit 1)")
+def f_absurd_design_figures_not_a_directory(cli, tmp_path):
+    (tmp_path / "a-file").write_text("")
+    (tmp_path / "loop-a").symlink_to(tmp_path / "loop-b")
+    (tmp_path / "loop-b").symlink_to(tmp_path / "loop-a")
+    task = str(ROOT / "configs/tasks/toy_push_y.toml")
+    for figures, why in ((tmp_path / "a-file", "File exists"), (tmp_path / "loop-a" / "x", "symbolic links")):
+        _refused(cli, ("design", task, "--min-modules", "2", "--max-modules", "2", "--figures", str(figures)),
+                 f"--figures {figures}: cannot make the directory", why)
+
+
+@bad_input("enumerate 8 --sample 5 --sigma 1e308 (and 1e-300)",
+           "samples as the weights say (uniform, or the most compact first), exit 0 (before: an OverflowError "
+           "traceback from sigma squared, and numpy warnings)")
+def f_absurd_enumerate_sigma_extremes(cli, tmp_path):
+    for sigma in ("1e308", "1e-300"):
+        code, out, err = cli("enumerate", "8", "--sample", "5", "--sigma", sigma, "--json")
+        assert code == 0 and "Traceback" not in err and "Warning" not in err, err
+        last = json.loads(out.splitlines()[-1])
+        assert last["n"] == 8 and last["kept"] == 5 and 5 <= last["non_isomorphic"] <= last["available"], out
 
 
 @bad_input("optimize with the Python executable given as the task",

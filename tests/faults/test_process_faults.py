@@ -647,6 +647,27 @@ def f_log_truncated_in_flight(cli, tmp_path):
     assert named and named[0] - cut[0] < 1.5  # the writer checks at its once-a-second flush
 
 
+
+@process_fault("the log cut to part of itself in flight (to 40 bytes, past its start; to half its length)",
+               "the writer finds the stretch cut away (a hole where it wrote) at its next flush and stops; the flight "
+               "acts on the failed log and its result names it; never reported complete (before: exit 0, done, 34-59 "
+               "chunks unreadable)")
+def f_log_cut_short_in_flight(cli, tmp_path):
+    for keep in (lambda size: 40, lambda size: size // 2):
+        log = tmp_path / f"cut-{len(list(tmp_path.glob('cut-*')))}.mcap"
+        cut = []
+
+        def truncate(t, log=log, cut=cut, keep=keep):
+            if t > 1.5 and not cut:
+                cut.append(keep(log.stat().st_size))
+                os.truncate(log, cut[0])
+
+        res = fly(config_with(tmp_path, endpoint="tcp/127.0.0.1:8681"), duration=2.0, log_path=log,
+                  on_period=truncate)
+        assert cut and not res.nominal and "truncated by another process" in (res.log_error or ""), \
+            (res.phase, res.reason, res.log_error)
+        assert res.reason.startswith("log writer failed: OSError: the log file was truncated"), res.reason
+
 # -- long work ---------------------------------------------------------------------------------------------------
 @process_fault("Ctrl-C (SIGINT to the process group, as a terminal sends it) while `enumerate 13` runs level 12 "
                "(seconds of compiled kernels that never look at signals)",

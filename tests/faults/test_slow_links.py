@@ -113,12 +113,46 @@ def f_px4_relay_answering_timesync_for_the_module(cli, tmp_path):
 
 
 @link_or_load("crazyflie: a relay swaps the two modules' links (both ways) in flight",
-              "the next claim's answer names the other module (its unique id, within ~50 ms): the links re-routed, "
-              "each module its own commands again, a landing, upright, exit 1 (before: fresh modules shared token 1 "
-              "and each flew the other's commands: the V flipped, 172 deg)")
+              "the modules drop every command (5 batches: their commands' ways traded) and the claims' answers name "
+              "the other module (its unique id, within ~50 ms: the answers' ways re-routed), whichever comes first "
+              "named: each module its own commands again, a landing, upright, exit 1 (before: fresh modules shared "
+              "token 1 and each flew the other's commands: the V flipped, 172 deg)")
 def f_crazyflie_links_swapped_in_flight(cli, tmp_path):
     # Measured: 13 deg (the modules hold their last command, the other's dropped by its token, until re-routed).
-    _landed_on_a_bad_link(tmp_path, "crazyflie", 2, max_tilt_deg=30.0, named="re-routed", swap_after=6.0)
+    _landed_on_a_bad_link(tmp_path, "crazyflie", 2, max_tilt_deg=30.0, named="0 and 1", swap_after=6.0)
+
+
+@link_or_load("crazyflie: a relay swaps only the modules' answers in flight (the commands still reach their modules)",
+              "the answers' ways re-routed by the modules' unique ids, the commands' left as they are (the modules "
+              "accept them): a landing, upright, exit 1 (before: the commands were swapped too, each module dropped "
+              "them by their token and the V fell from 0.93 m)")
+def f_crazyflie_answers_swapped_in_flight(cli, tmp_path):
+    _landed_on_a_bad_link(tmp_path, "crazyflie", 2, max_tilt_deg=30.0, named="re-routed", swap_after=6.0,
+                          swap_way="answers")
+
+
+@link_or_load("crazyflie: a relay swaps only the modules' commands in flight (the claims' answers say nothing)",
+              "both modules drop every command (5 batches): their commands' ways traded, a landing, upright, exit 1 "
+              "(before: dropped until the echo check 4 s later; the motors stopped after 100 ms, a fall)")
+def f_crazyflie_commands_swapped_in_flight(cli, tmp_path):
+    _landed_on_a_bad_link(tmp_path, "crazyflie", 2, max_tilt_deg=30.0, named="commands' ways traded", swap_after=6.0,
+                          swap_way="commands")
+
+
+@link_or_load("crazyflie: in the plan's landing, a relay swaps the two links (both ways)",
+              "re-routed (the modules' commands' or answers' ways), and said: the landing goes on, exit 1 (before: "
+              "exit 0, nothing in the log)")
+def f_crazyflie_links_swapped_in_the_landing(cli, tmp_path):
+    # A 3 s landing from ~6.3 s of flight; the relay's first packet comes ~1.8 s before arming: swapped ~1 s into it.
+    with _slowed(tmp_path, "crazyflie", 2, swap_after=9.0) as cfg:
+        cfg.write_text(cfg.read_text().replace("landing_s = 1.0\n", "landing_s = 3.0\n"))
+        log = tmp_path / "swapped-landing.mcap"
+        with host_freezes() as seen:
+            res = fly(cfg, duration=5.0, log_path=log)
+    raise_if_stopped_by_host(res.phase, res.reason, seen)
+    assert res.phase == "done" and "0 and 1" in res.reason and not res.nominal, (res.phase, res.reason)
+    assert any(e[2] == f"{res.reason}: the landing goes on" for e in res.events), res.events  # in the landing
+    assert _max_tilt_deg(log) < 30.0 and _last_height_m(log) < 0.1
 
 
 @link_or_load("PX4: a relay swaps the two modules' links (both ways) in flight",
