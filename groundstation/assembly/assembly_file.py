@@ -231,13 +231,15 @@ def _figure_tolerances(ver: Verification) -> dict[str, float]:
 
 
 def _is_number(x) -> bool:
-    """A finite float or an integer one converts to (a stored cost of 10**400 failed in ``math.isclose``)."""
+    """A float (inf too: an infeasible design's figures hold it) or an integer that converts to one (a stored cost
+    of 10**400 failed in ``math.isclose``)."""
     if not isinstance(x, int | float) or isinstance(x, bool):
         return False
     try:
-        return math.isfinite(float(x))
+        float(x)
     except OverflowError:
         return False
+    return True
 
 
 def _not_a_number(value) -> object | None:

@@ -150,6 +150,11 @@ class _Module:
         way back, the same for both when both come from the module as they are sent."""
         self.rtts: deque[float] = deque()
         """The newest round trips measured, s."""
+        self.last_seq: int | None = None
+        """The MAVLink sequence number of the module autopilot's newest message (its link counts them, mod 256)."""
+        self.seq_gaps: deque[tuple[float, int]] = deque()
+        """(when, messages missing just before it) of each of the module's messages in order, oldest first: what
+        its way to us loses, which a relay answering the probes itself does not hide (hostile campaign 31)."""
         self.route: int | None = None
         """The other link this module's messages came on (a relay swapped links in flight), or None: its commands
         go down that link too (its own may still reach it, if only one way was swapped)."""
@@ -210,6 +215,8 @@ class MavlinkBackend(BackendBase):
             m.sent.clear()
             m.answer_clock.clear()
             m.attitude_clock.clear()
+            m.seq_gaps.clear()
+            m.last_seq = None
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
         while self._clock() < deadline and not all(m.battery_heard >= since and r and len(m.rtts) >= s.latency_samples
                                                    for m, r in zip(self._modules, requested, strict=True)):
@@ -332,20 +339,25 @@ class MavlinkBackend(BackendBase):
     def link_loss(self) -> np.ndarray:
         """Per module, the fraction of packets lost each way over :data:`LOSS_WINDOW_S`, from the probes left
         unanswered ``link_timeout`` after they went (an answer that comes later still marks its probe answered),
-        both ways taken alike: 1 - sqrt(answered), the share answered taken at the upper end of its confidence interval
-        (:data:`LOSS_CONFIDENCE_Z`). NaN under :data:`MIN_LOSS_PROBES`. Answers that stop while the rest of
-        the link flows (or a round trip beyond the timeout) read as 100 %: a degraded link, never an old median
-        held (nor a silence taken for a round trip: 30 % loss made runs of ten probes in a row go unanswered, read
-        as 100 ms round trips that stopped the motors 0.95 m up; hostile campaign 29)."""
+        both ways taken alike: 1 - sqrt(answered), the share answered taken at the upper end of its confidence
+        interval (:data:`LOSS_CONFIDENCE_Z`); or, if more, the share of the module's own messages missing from
+        their sequence numbers (the way back alone, which forged answers to the probes do not hide). NaN under
+        :data:`MIN_LOSS_PROBES` of both. Answers that stop while the rest of the link flows (or a round trip
+        beyond the timeout) read as 100 %: a degraded link, never an old median held (nor a silence taken for a
+        round trip: 30 % loss made runs of ten probes in a row go unanswered, read as 100 ms round trips that
+        stopped the motors 0.95 m up; hostile campaign 29)."""
         out = []
         for m in self._modules:
             end = self._polled - self.settings.link_timeout
             judged = [answered for t, answered in m.sent if end - LOSS_WINDOW_S <= t < end]
-            if len(judged) < MIN_LOSS_PROBES:
-                out.append(np.nan)
-                continue
-            lost = _wilson_lower(len(judged) - sum(judged), len(judged), LOSS_CONFIDENCE_Z)
-            out.append(1.0 - math.sqrt(1.0 - lost))
+            each_way = np.nan
+            if len(judged) >= MIN_LOSS_PROBES:
+                lost = _wilson_lower(len(judged) - sum(judged), len(judged), LOSS_CONFIDENCE_Z)
+                each_way = 1.0 - math.sqrt(1.0 - lost)
+            missing = sum(gap for _, gap in m.seq_gaps)  # the way back, counted by the module's own numbers
+            came = len(m.seq_gaps)
+            back = _wilson_lower(missing, missing + came, LOSS_CONFIDENCE_Z) if came >= MIN_LOSS_PROBES else np.nan
+            out.append(np.nan if np.isnan(each_way) and np.isnan(back) else np.nanmax([each_way, back]))
         return np.array(out)
 
     def disarm(self) -> None:
@@ -492,6 +504,8 @@ class MavlinkBackend(BackendBase):
                 if i is None:
                     continue
                 m = self._modules[i]
+                if m.system_id is not None and msg.get_srcComponent() == m.component_id:
+                    self._count_sequence(m, msg.get_seq(), now)
                 if kind == "HEARTBEAT":
                     if msg.type == mav.MAV_TYPE_GCS or msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
                         continue  # another ground station or a peripheral, not the module's autopilot
@@ -549,6 +563,16 @@ class MavlinkBackend(BackendBase):
                 else:
                     continue
                 m.heard = now
+
+    @staticmethod
+    def _count_sequence(m: _Module, seq: int, now: float) -> None:
+        gap = (seq - m.last_seq - 1) & 0xFF if m.last_seq is not None else 0
+        if gap >= 128:
+            return  # behind the newest: a duplicate or one overtaken (its gap was counted when it was skipped)
+        m.last_seq = seq
+        m.seq_gaps.append((now, gap))
+        while m.seq_gaps[0][0] < now - LOSS_WINDOW_S:
+            m.seq_gaps.popleft()
 
     def _sender(self, link: int, system_id: int) -> int | None:
         """The module that sent a message from ``system_id`` on ``link``: the link's own until its heartbeat named

@@ -80,6 +80,8 @@ def from_pwm(pwm, u_max: float, pwm_min: int, pwm_max: int) -> np.ndarray:
 
 PARAM_INT_FORMATS = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}
 """MAV_PARAM_TYPE_UINT8 .. INT32 -> struct format; MAV_PARAM_TYPE_REAL32 (9) travels as itself."""
+PARAM_CTYPES = {1: "uint8_t", 2: "int8_t", 3: "uint16_t", 4: "int16_t", 5: "uint32_t", 6: "int32_t", 9: "float"}
+"""MAV_PARAM_TYPE -> the C type it holds (as cflib names them)."""
 
 
 def param_to_wire(value: float, param_type: int) -> float:

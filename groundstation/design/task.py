@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Field
@@ -31,13 +31,22 @@ from groundstation.assembly.module import GRAVITY, ModuleParams
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+MAX_COMPONENT = 1e6
+"""Largest wrench component, N or N m (or in n m g units): a module lifts well under 10 N; a 1e308 force overflowed
+the verification ("needs inf N", numpy warnings: hostile campaigns 30, 32)."""
+MAX_WEIGHT = 1e6
+"""Largest ``lambda_k`` (the hover wrench's is 1): a weight of 1e308 made the cost inf and ``optimize`` called the
+design feasible, writing a file its own loader refused (hostile campaign 32)."""
+_Component = Annotated[float, Field(ge=-MAX_COMPONENT, le=MAX_COMPONENT)]
+
+
 @dataclass(frozen=True, config=_STRICT)
 class TaskWrench:
-    force: tuple[float, float, float]
+    force: tuple[_Component, _Component, _Component]
     """Force, body frame; N, or units of n m g when the task's ``units`` is ``nmg``."""
-    torque: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque: tuple[_Component, _Component, _Component] = (0.0, 0.0, 0.0)
     """Torque about the centroid, body frame; N m, or units of n m g l_c."""
-    weight: float = Field(1.0, ge=0)
+    weight: float = Field(1.0, ge=0, le=MAX_WEIGHT)
     """``lambda_k``: weight of this wrench's input effort in the cost."""
 
 

@@ -26,7 +26,7 @@ from cflib.crtp.udpdriver import UdpDriver
 
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.crazyflie import ensure_drivers
-from groundstation.firmware.params import ParamCheck, matches
+from groundstation.firmware.params import ParamCheck, matches, outside_type
 
 ATTEMPTS = 5
 """Connections tried per module."""
@@ -282,6 +282,9 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
             if element.access == ParamTocElement.RO_ACCESS:
                 checks.append(ParamCheck(module, uri, name, expected, actual,
                                          note="read-only: flash the firmware that has it right"))
+                continue
+            if why := outside_type(expected, element.ctype):
+                checks.append(ParamCheck(module, uri, name, expected, actual, note=why))
                 continue
             cf.param.add_update_callback(group=group, name=short, cb=values.on_update)
             seen = values.count(name)

@@ -32,6 +32,25 @@ def load_param_file(path: str | Path) -> dict[str, float]:
     return dict(config.load(ParamFile, path).params)
 
 
+WIRE_RANGES = {"uint8_t": (0, 2**8 - 1), "int8_t": (-2**7, 2**7 - 1), "uint16_t": (0, 2**16 - 1),
+               "int16_t": (-2**15, 2**15 - 1), "uint32_t": (0, 2**32 - 1), "int32_t": (-2**31, 2**31 - 1),
+               "uint64_t": (0, 2**64 - 1), "int64_t": (-2**63, 2**63 - 1), "float": (-3.4028234663852886e38,
+                                                                                      3.4028234663852886e38)}
+"""What a parameter of each C type can hold (cflib's type names; PX4's are mapped onto them)."""
+
+
+def outside_type(value: float, ctype: str) -> str:
+    """Why ``value`` cannot be written to a parameter of C type ``ctype`` ("" if it can, or the type is not one we
+    know): out of its range (a uint8 of 256 ended in a cflib traceback) or, for an integer, not whole (written
+    rounded, it was then reported as a mismatch)."""
+    lo, hi = WIRE_RANGES.get(ctype, (-math.inf, math.inf))
+    if not lo <= value <= hi:
+        return f"{value:g} is outside what a {ctype} parameter holds ({lo:g} to {hi:g}): fix the file"
+    if ctype != "float" and ctype in WIRE_RANGES and value != int(value):
+        return f"{value:g} is not a whole number, as a {ctype} parameter must be: fix the file"
+    return ""
+
+
 def matches(actual: float, expected: float) -> bool:
     """Parameters travel as float32 (MAVLink) or their C type: equal at float32 resolution."""
     return math.isclose(actual, expected, rel_tol=1e-6, abs_tol=1e-9)

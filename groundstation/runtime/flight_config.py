@@ -228,8 +228,9 @@ class TrajectorySection:
     """Figure-8 t_c or circle period, s (preflight bounds the speed and acceleration it asks; at most an hour)."""
     height: float = Field(1.0, gt=0, le=MAX_GEOFENCE_M)
     """h0, m (the geofence bounds it)."""
-    duration: float = Field(16.0, gt=0, le=MAX_DURATION_S)
-    """Tracking time, s (at most an hour: no battery lasts longer)."""
+    duration: float = Field(16.0, ge=MIN_PHASE_S, le=MAX_DURATION_S)
+    """Tracking time, s (at most an hour: no battery lasts longer; at least :data:`MIN_PHASE_S`: 5e-324 s flew, with
+    a NaN tracking error, hostile campaign 32)."""
     roll_deg: float = 0.0
     """Roll target while tracking, deg (one the assembly hovers at, and with the controller's lean below
     ``failsafe.max_tilt_deg``: :func:`bound_issues`)."""

@@ -309,6 +309,16 @@ def f_absurd_enumerate_sigma_extremes(cli, tmp_path):
         assert last["n"] == 8 and last["kept"] == 5 and 5 <= last["non_isomorphic"] <= last["available"], out
 
 
+@bad_input("optimize a task with a wrench weight of 1e308, or a force component of 1e308 N",
+           "exit 2 naming the file and key, bounded at 1e6 (before: the weight made the cost inf, `optimize` exit 0 "
+           "calling it feasible and writing a file its own loader refused; the force read \"needs inf N\")")
+def f_absurd_task_weight_and_force_1e308(cli, tmp_path):
+    task = tmp_path / "task.toml"
+    for line, key in (("weight = 1e308", "wrench.0.weight"), ("torque = [0.0, 0.0, -1e308]", "wrench.0.torque.2")):
+        task.write_text(f"[[wrench]]\nforce = [0.0, 0.36, 0.0]\n{line}\n")
+        _refused(cli, ("optimize", str(task), "--topology", "oS"), f"{task}: {key}", "1000000")
+
+
 @bad_input("optimize with the Python executable given as the task",
            "exit 2 naming the file: not a text file")
 def f_absurd_task_is_a_binary(cli, tmp_path):

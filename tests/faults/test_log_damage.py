@@ -98,6 +98,39 @@ def f_log_truncated(cli, tmp_path):
                                                                                           "messages": None}}
 
 
+def _zstd_bomb(declared: int, gib: int) -> bytes:
+    """A chunk record whose header declares ``declared`` uncompressed bytes (CRC 0: "not computed") and whose zstd
+    frame, naming its own size, holds ``gib`` GiB of zeros in a few hundred KiB."""
+    import struct
+
+    import zstandard
+
+    z = zstandard.ZstdCompressor(level=1).compressobj(size=gib << 30)
+    block = bytes(1 << 24)
+    data = b"".join([z.compress(block) for _ in range(gib << 6)] + [z.flush()])
+    body = struct.pack("<QQQI", 1, 2, declared, 0) + struct.pack("<I", 4) + b"zstd" + struct.pack("<Q", len(data))
+    return struct.pack("<BQ", 6, len(body) + len(data)) + body + data
+
+
+@process_fault("a chunk that decompresses to 1 GiB of zeros from 1 MiB (its header declaring 1000 bytes) put "
+               "before a flight log's second chunk",
+               "replay reads no more than the header declares: the chunk named (does not decompress), every period "
+               "of the flight analysed, exit 0 (before: mcap decompressed what the zstd frame said, gigabytes, and "
+               "walked the zeros as records for minutes)")
+def f_log_decompression_bomb(cli, tmp_path):
+    log = flight_log()
+    second = chunks_of(log)[1].start
+    bad = tmp_path / "bomb.mcap"
+    data = log.read_bytes()
+    bomb = _zstd_bomb(1000, 1)
+    bad.write_bytes(data[:second] + bomb + data[second:])
+    code, out, err = cli("replay", str(bad), "--json")
+    (figures,) = json.loads(out)
+    assert code == 0 and figures["periods"] == expected(log).periods and not figures["complete"], err
+    assert figures["warnings"][0].startswith(f"bytes {second}-{second + len(bomb)}: does not decompress or parse: "
+                                             f"1 chunk"), figures["warnings"]
+
+
 def _summary_or_footer(cli, tmp_path, where: str) -> None:
     log = flight_log()
     size = log.stat().st_size
