@@ -396,7 +396,9 @@ def select(task: Task, params: ModuleParams, max_modules: int, *, sampling: Samp
                     on_result(level[-1][0])
             else:
                 todo.append(c)
-        with _Runner(workers, scheduler) as runner:
+        # No more processes than candidates to solve (--workers 256 for one candidate started 256, each loading
+        # CasADi: load 67 on 2 cores, hostile campaign 32).
+        with _Runner(max(1, min(workers, len(todo))), scheduler) as runner:
             for row, record, least_record in runner.map(todo, task, params, opts, least):
                 level.append((row, record))
                 if path is not None:

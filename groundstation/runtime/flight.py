@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 import threading
 import time
 from collections import deque
@@ -502,8 +503,8 @@ class Flight:
         """(flight time s, its reference, the attitude target of the reference alone) of the previous period."""
         self._mocap_fault_named = ""
         """The kind of mocap fault last seen (its text without the counts)."""
-        self._link_named = False
-        """A degraded link began or went into the landing (said once)."""
+        self._link_named: set[str] = set()
+        """The kinds of degraded link (their text without figures) already said."""
         self._gyro_fault_named = False
         self._gyros_lost_at: float | None = None
         """Since when no gyro has been usable (as :attr:`GyroAgreement.lost_since` said last period), s."""
@@ -740,10 +741,12 @@ class Flight:
             if severe or self.policy.on_link_degraded == "stop":
                 self._emergency(t, degraded)
                 return False
-            # In the plan's landing, named once (it goes on): a link re-routed there was otherwise never said.
-            if state is not None and (self.phase.airborne or (self.phase == Phase.LANDING and not self._link_named)):
+            # In the plan's landing, each kind named once (it goes on): a link re-routed there was never said.
+            kind = re.sub(r"\d+(\.\d+)?", "#", degraded)  # its figures change every period
+            if state is not None and (self.phase.airborne or (self.phase == Phase.LANDING and
+                                                                kind not in self._link_named)):
                 self._begin_landing(t, state, degraded)
-                self._link_named = True
+            self._link_named.add(kind)
         fault = self.pose.fault() or est.fault()
         if fault:
             why = f"mocap fault: {fault}"

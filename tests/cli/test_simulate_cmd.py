@@ -32,7 +32,7 @@ def test_json_metrics_and_plot(cli, tmp_path):
 @pytest.mark.parametrize("args, fragment", [
     (["simulate", "nope.json"], "nope.json: file not found"),
     (["simulate", TOY, "--trajectory", "spiral"], "--trajectory: Input should be 'hover', 'circle' or 'figure8'"),
-    (["simulate", TOY, "--duration", "-1"], "--duration: Input should be greater than 0"),
+    (["simulate", TOY, "--duration", "-1"], "--duration: Input should be greater than or equal to 0.1"),
     (["simulate", TOY, "--height", "9"], "flight volume"),
     (["simulate", TOY, "--allocation", "magic"], "--allocation: Input should be 'clip' or 'bounded'"),
     # absurd but valid by type: the bounds of a flight config
@@ -46,7 +46,8 @@ def test_json_metrics_and_plot(cli, tmp_path):
     (["simulate", TOY, "--physics-hz", "30"], "--physics-hz: 4 Hz at attitude_zeta = 0.9"),
     (["simulate", "/dev/zero"], "/dev/zero: not a text file"),
     # the trajectory the options ask is beyond the assembly: the options named (before: the trajectory alone)
-    (["simulate", TOY, "--duration", "1e-300"], "(--trajectory figure8 --duration 1e-300 --height 1"),
+    (["simulate", TOY, "--duration", "1e-300"], "--duration: Input should be greater than or equal to 0.1"),
+    (["simulate", TOY, "--duration", "5e-324"], "--duration: Input should be greater than or equal to 0.1"),
     (["simulate", TOY, "--period", "0.3"], "asks for 89 deg of tilt, above 0.75 x gains.max_tilt_deg = 22.5 deg "
                                            "(--trajectory figure8 --duration 16 --height 1 --size 0.6 --period 0.3"),
 ])

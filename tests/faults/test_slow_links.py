@@ -122,8 +122,9 @@ def f_px4_relay_answering_timesync_for_the_module(cli, tmp_path):
               "the module's own messages missing from their sequence numbers measure the loss the answers hide: "
               "named, a landing, upright, exit 1 (before: read 0 % loss, the flight went on, the log said 0)")
 def f_px4_relay_hiding_loss_behind_forged_answers(cli, tmp_path):
-    _landed_on_a_bad_link(tmp_path, "mavlink", 2, max_tilt_deg=30.0, named="loses", loss=0.4, answer_timesync=True,
-                          seed=4)
+    # The loss is named, or the round trip the lost ATTITUDE stretches (older on the module's clock): not hidden.
+    _landed_on_a_bad_link(tmp_path, "mavlink", 2, max_tilt_deg=30.0, named=("loses", "round trip"), loss=0.4,
+                          answer_timesync=True, seed=4)
 
 
 @link_or_load("crazyflie: a relay swaps the two modules' links (both ways) in flight",
@@ -165,8 +166,9 @@ def f_crazyflie_links_swapped_in_the_landing(cli, tmp_path):
         with host_freezes() as seen:
             res = fly(cfg, duration=5.0, log_path=log)
     raise_if_stopped_by_host(res.phase, res.reason, seen)
-    assert res.phase == "done" and "0 and 1" in res.reason and not res.nominal, (res.phase, res.reason)
-    assert any(e[2] == f"{res.reason}: the landing goes on" for e in res.events), res.events  # in the landing
+    assert res.phase == "done" and not res.nominal, (res.phase, res.reason)
+    said = [text for _, _, text in res.events if text.endswith(": the landing goes on")]  # in the landing
+    assert any("0 and 1" in text for text in said), res.events  # (a loaded machine's slow link may come first)
     assert _max_tilt_deg(log) < 30.0 and _last_height_m(log) < 0.1
 
 
