@@ -9,6 +9,7 @@ on every other path (real modules latch it until they are rebooted).
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Protocol, Self, runtime_checkable
@@ -163,3 +164,16 @@ class BackendBase(ABC):
         if self._armed:
             self.emergency_stop()
         self.close()
+
+
+LOSS_CONFIDENCE_Z = 2.0
+"""The loss read is the lower bound of this many standard deviations (Wilson) on the share lost (PX4's probes, a
+Crazyflie's commands): a window is a noisy sample, and its plain share landed flights on healthy 2-5 % links."""
+
+
+def wilson_lower(k: int, n: int, z: float) -> float:
+    """Lower end of the Wilson score interval of ``k`` in ``n`` at ``z`` standard deviations."""
+    p = k / n
+    centre = p + z * z / (2 * n)
+    spread = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return max(0.0, (centre - spread) / (1 + z * z / n))

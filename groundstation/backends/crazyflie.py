@@ -58,7 +58,15 @@ from cflib.crtp.crtpstack import CRTPPacket
 from groundstation.assembly.module import ModuleParams
 from groundstation.assembly.motor_map import REQUIRES_ARMING
 from groundstation.backends import crtp_wire as wire
-from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rates
+from groundstation.backends.base import (
+    LOSS_CONFIDENCE_Z,
+    BackendBase,
+    PreflightReport,
+    Telemetry,
+    applied_command,
+    body_rates,
+    wilson_lower,
+)
 from groundstation.backends.link_lock import LinkLocks
 from groundstation.backends.udp_link import StampedUdpLink
 from groundstation.errors import ArmingError, LinkError
@@ -85,6 +93,10 @@ the flight lands (a relay that holds the answers back would otherwise hide a swa
 STARVED_STATES = 5
 """A module whose states report this many batches in a row of only dropped commands gets none of ours with its
 token: after a re-route, the commands' way was swapped too (its partner's link carries them)."""
+MAX_TRADES = 8
+"""Trades of two starving modules' commands' ways a flight: a relay swapping back and forth is followed (a second
+swap, traded once a flight, stopped the motors 0.7-0.97 m up: hostile campaign 33); two modules that starve on
+after that many are faulty."""
 IDENTITY_PERIOD_S = 0.05
 """In flight each module is claimed again this often (the same session keeps its token; the answer names the
 module): a link that reaches another module than its own is found within a period of this and a round trip, s.
@@ -340,8 +352,8 @@ class CrazyflieBackend(BackendBase):
         self.rerouted = ""
         """How the links stopped being what preflight checked, in flight ("" if never): re-routed, a module's claims
         unanswered."""
-        self._traded = False
-        """The commands' ways of two modules were traded in flight (done once: a second would be a guess)."""
+        self._trades = 0
+        """How often two modules' commands' ways were traded in flight (at most :data:`MAX_TRADES`)."""
         self._locks = LinkLocks(self.uris)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -689,8 +701,9 @@ class CrazyflieBackend(BackendBase):
             if len(m.samples) >= 2:
                 (_, seq0, rcv0), (_, seq1, rcv1) = m.samples[0], m.samples[-1]
                 sent = (seq1 - seq0) & 0xFFFF
-                if sent >= MIN_LOSS_SAMPLES:
-                    loss[i] = min(max(1.0 - ((rcv1 - rcv0) & 0xFFFF) / sent, 0.0), 1.0)
+                if sent >= MIN_LOSS_SAMPLES:  # the low end of its interval, as PX4's: a 5 % link read 10 % and
+                    lost = min(max(sent - ((rcv1 - rcv0) & 0xFFFF), 0), sent)  # landed (hostile campaign 33)
+                    loss[i] = wilson_lower(lost, sent, LOSS_CONFIDENCE_Z)
         return LinkQuality(np.array(latency), np.array(loss))
 
     # -- wire ---------------------------------------------------------------------------------------------------
@@ -815,9 +828,11 @@ class CrazyflieBackend(BackendBase):
     def _starved(self, i: int, m: _Module) -> None:
         """Module i drops every command of ours (:data:`STARVED_STATES` states): its commands reach another module.
         After a re-route, they go down its partner's link; else, when exactly one other module starves too (a relay
-        swapped only the commands' ways), down that one's, once a flight. Otherwise the module is faulty."""
+        swapped only the commands' ways, or swapped them back), down that one's (:data:`MAX_TRADES` a flight).
+        Otherwise the module is faulty."""
         others = [k for k, o in enumerate(self._modules) if k != i and o.starved > 0]
-        j = m.partner if m.partner is not None else (others[0] if len(others) == 1 and not self._traded else None)
+        j = m.partner if m.partner is not None else (
+            others[0] if len(others) == 1 and self._trades < MAX_TRADES else None)
         if j is None and not others and m.starved < 2 * STARVED_STATES:
             return  # the other may not have reported its first drop yet
         if j is None:
@@ -828,7 +843,7 @@ class CrazyflieBackend(BackendBase):
         a.sender, b.sender = b.sender, a.sender
         a.partner = b.partner = None
         a.starved = b.starved = 0
-        self._traded = True
+        self._trades += 1
         self._note(f"modules {min(i, j)} and {max(i, j)} dropped every command: their commands' ways traded places "
                    f"too")
 

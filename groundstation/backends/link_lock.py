@@ -16,7 +16,6 @@ import ipaddress
 import os
 import re
 import socket
-import tempfile
 from pathlib import Path
 
 from groundstation.errors import LinkError
@@ -60,10 +59,15 @@ def _address(host: str) -> str:
     return min(addresses)  # a name with several addresses: the link takes the first; any one names it alike
 
 
+LOCK_BASE = Path("/tmp")
+"""Where the lock directory lives: fixed, never taken from the environment (``TMPDIR`` or ``XDG_RUNTIME_DIR`` set
+otherwise in a second shell put its locks elsewhere, and a second PX4 flight armed the first's modules: hostile
+campaign 33)."""
+
+
 def lock_dir() -> Path:
-    """``$XDG_RUNTIME_DIR/groundstation-links`` (per user, cleared at logout), else the temp dir."""
-    base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
-    return Path(base) / f"groundstation-links-{os.getuid()}"
+    """``/tmp/groundstation-links-<uid>``: per user (mode 700)."""
+    return LOCK_BASE / f"groundstation-links-{os.getuid()}"
 
 
 class LinkLocks:

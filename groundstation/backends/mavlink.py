@@ -44,7 +44,15 @@ import numpy as np
 from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.backends.base import BackendBase, PreflightReport, Telemetry, applied_command, body_rates
+from groundstation.backends.base import (
+    LOSS_CONFIDENCE_Z,
+    BackendBase,
+    PreflightReport,
+    Telemetry,
+    applied_command,
+    body_rates,
+    wilson_lower,
+)
 from groundstation.backends.link_lock import LinkLocks
 from groundstation.errors import ArmingError, LinkError
 
@@ -100,9 +108,6 @@ LOSS_WINDOW_S = 0.5
 answered), s."""
 MIN_LOSS_PROBES = 20
 """Fewer probes in the window measure no loss."""
-LOSS_CONFIDENCE_Z = 2.0
-"""The loss read is the lower bound of this many standard deviations (Wilson) on the share of probes lost: 40
-probes are a noisy sample, and their plain share landed flights on healthy 2-5 % links (review)."""
 CLOCK_WINDOW_S = 0.2
 """The module's clock is compared with ours over the newest stretch this long, s."""
 FOREIGN_CLOCK_S = 0.05
@@ -352,11 +357,11 @@ class MavlinkBackend(BackendBase):
             judged = [answered for t, answered in m.sent if end - LOSS_WINDOW_S <= t < end]
             each_way = np.nan
             if len(judged) >= MIN_LOSS_PROBES:
-                lost = _wilson_lower(len(judged) - sum(judged), len(judged), LOSS_CONFIDENCE_Z)
+                lost = wilson_lower(len(judged) - sum(judged), len(judged), LOSS_CONFIDENCE_Z)
                 each_way = 1.0 - math.sqrt(1.0 - lost)
             missing = sum(gap for _, gap in m.seq_gaps)  # the way back, counted by the module's own numbers
             came = len(m.seq_gaps)
-            back = _wilson_lower(missing, missing + came, LOSS_CONFIDENCE_Z) if came >= MIN_LOSS_PROBES else np.nan
+            back = wilson_lower(missing, missing + came, LOSS_CONFIDENCE_Z) if came >= MIN_LOSS_PROBES else np.nan
             out.append(np.nan if np.isnan(each_way) and np.isnan(back) else np.nanmax([each_way, back]))
         return np.array(out)
 
@@ -601,10 +606,3 @@ def _wrapped_ms(ns: int) -> float:
     """A time in ns as a uint32 ms count wraps (``time_boot_ms``), keeping its fraction, ms."""
     return (ns / 1e6) % 2.0**32
 
-
-def _wilson_lower(k: int, n: int, z: float) -> float:
-    """Lower end of the Wilson score interval of ``k`` in ``n`` at ``z`` standard deviations."""
-    p = k / n
-    centre = p + z * z / (2 * n)
-    spread = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return max(0.0, (centre - spread) / (1 + z * z / n))

@@ -29,6 +29,7 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
     """
     from pathlib import Path
 
+    from groundstation.backends.link_lock import LinkLocks
     from groundstation.firmware.modules import check_modules, required_params
     from groundstation.firmware.params import issues
     from groundstation.runtime.flight_config import load_flight_config, log_directory
@@ -36,9 +37,16 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
     cfg, base = load_flight_config(flight)
     wanted = required_params(cfg.backend, base, Path(param_file).resolve() if param_file else None)
     n = len(cfg.backend.modules)
-    with stderr_console().status("connecting") as status:
-        checks = check_modules(cfg.backend, wanted, apply=apply, cache_dir=log_directory(cfg, base, flight),
-                               on_module=lambda done: status.update(f"modules checked: {done}/{n}"))
+    # The modules' link locks, as a flight takes them: parameters are never read or written while a flight (or
+    # another `params`) on this host holds the modules (written into airborne modules before: hostile campaign 33).
+    locks = LinkLocks(cfg.backend.modules)
+    locks.acquire()
+    try:
+        with stderr_console().status("connecting") as status:
+            checks = check_modules(cfg.backend, wanted, apply=apply, cache_dir=log_directory(cfg, base, flight),
+                                   on_module=lambda done: status.update(f"modules checked: {done}/{n}"))
+    finally:
+        locks.release()
     if as_json:
         click.echo(json.dumps([asdict(c) | {"ok": c.ok} for c in checks]))
     else:

@@ -37,6 +37,8 @@ WIRE_RANGES = {"uint8_t": (0, 2**8 - 1), "int8_t": (-2**7, 2**7 - 1), "uint16_t"
                "uint64_t": (0, 2**64 - 1), "int64_t": (-2**63, 2**63 - 1), "float": (-3.4028234663852886e38,
                                                                                       3.4028234663852886e38)}
 """What a parameter of each C type can hold (cflib's type names; PX4's are mapped onto them)."""
+FLOAT32_TINY = 1.1754943508222875e-38
+"""The smallest normal float32: a float parameter set below it is stored as 0 (or a denormal PX4 flushes)."""
 
 
 def outside_type(value: float, ctype: str) -> str:
@@ -48,6 +50,8 @@ def outside_type(value: float, ctype: str) -> str:
         return f"{value:g} is outside what a {ctype} parameter holds ({lo:g} to {hi:g}): fix the file"
     if ctype != "float" and ctype in WIRE_RANGES and value != int(value):
         return f"{value:g} is not a whole number, as a {ctype} parameter must be: fix the file"
+    if ctype == "float" and 0.0 < abs(value) < FLOAT32_TINY:  # it would be written as 0 and read back "ok"
+        return f"{value:g} is below the smallest float32 ({FLOAT32_TINY:g}): it would be written as 0: fix the file"
     return ""
 
 

@@ -74,6 +74,9 @@ from groundstation.loop_activity import LoopActivity
 from groundstation.rotations import matrix_to_quat
 
 CHUNK_BYTES = 32 * 1024
+HEAD_WITNESS_BYTES = 4096
+WITNESS_BYTES = 64
+"""How much of the log's start, and of its newest bytes, each flush reads back and the next one checks."""
 FLUSH_S = 1.0
 POLL_S = 0.02
 """Wake-up interval of the feeder when no control loop signals the end of its periods, and of the writer
@@ -601,6 +604,8 @@ class _Writer:
         with contextlib.suppress(OSError):  # held for the writer's life: :func:`being_written`
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         self._fh = os.fdopen(fd, "wb")
+        self._witnesses: list[tuple[int, bytes]] = []
+        """(offset, bytes) the last flush read back from the file, for the next to compare (:meth:`flush`)."""
         self._mcap = _mcap_writer(self._fh)
         self._mcap.start(profile="", library=LIBRARY)
         for name, data in metadata.items():
@@ -721,6 +726,14 @@ class _Writer:
         if hole < end:
             raise OSError(f"the log file was truncated by another process (its bytes from {hole} on were cut, the "
                           f"writer went on at {end}): what was written there is lost")
+        # Written over in place (another log copied over it, zeros appended after a cut, bytes zeroed): what the
+        # writer read back at its last flush (the file's start, the newest bytes) must still be there.
+        for offset, data in self._witnesses:
+            if os.pread(fd, len(data), offset) != data:
+                raise OSError(f"the log file was overwritten by another process (bytes {offset}-{offset + len(data)} "
+                              f"are no longer what the writer wrote): what was written there is lost")
+        tail = max(end - WITNESS_BYTES, 0)
+        self._witnesses = [(0, os.pread(fd, min(end, HEAD_WITNESS_BYTES), 0)), (tail, os.pread(fd, end - tail, tail))]
 
     def serve(self) -> None:
         """The live view's share of the writer's thread (called after every batch, and every :data:`POLL_S` without

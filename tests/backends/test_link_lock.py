@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -21,15 +22,12 @@ HOLD = ("import sys\nfrom groundstation.backends.link_lock import LinkLocks\nloc
         "locks.acquire()\nprint('held', flush=True)\nsys.stdin.read()\n")
 
 
-@pytest.fixture(autouse=True)
-def _own_lock_dir(tmp_path, monkeypatch):
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # the holder process inherits it
-
-
 def _holder(*uris: str) -> subprocess.Popen:
     """Another process holding ``uris``' locks until its stdin closes."""
+    # Its temp and runtime directories elsewhere (another shell): the lock is where ours is all the same.
+    env = {**os.environ, "TMPDIR": "/var/tmp", "XDG_RUNTIME_DIR": "/var/tmp"}
     proc = subprocess.Popen([sys.executable, "-c", HOLD, *uris], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            text=True, cwd=ROOT)
+                            text=True, cwd=ROOT, env=env)
     assert proc.stdout.readline() == "held\n"
     return proc
 
@@ -112,3 +110,18 @@ def test_a_px4_backend_on_held_links_sends_nothing():
     finally:
         holder.communicate("")
         stop_peer(peer, th)
+
+
+def test_params_on_links_a_flight_holds_is_refused(cli, tmp_path):
+    """`params` takes the links' locks as a flight does: it never reads or writes the parameters of modules a flight
+    on this host holds (hostile campaign 33: `params --apply` wrote into airborne modules)."""
+    from tests.runtime.test_fly import sitl_config
+
+    cfg = sitl_config(tmp_path, "crazyflie", 19856, "tcp/127.0.0.1:7436")
+    holder = _holder("udp://localhost:19857")  # the flight holds module 1's link, spelled its way
+    try:
+        code, out, err = cli("params", str(cfg), "--apply")
+    finally:
+        holder.communicate("")
+    assert code != 0 and err.count("\n") == 1 and "udp://127.0.0.1:19857 is in use by another flight on this " \
+        f"host (pid {holder.pid})" in err, err
