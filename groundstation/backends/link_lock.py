@@ -60,14 +60,17 @@ def _address(host: str) -> str:
 
 
 LOCK_BASE = Path("/tmp")
-"""Where the lock directory lives: fixed, never taken from the environment (``TMPDIR`` or ``XDG_RUNTIME_DIR`` set
-otherwise in a second shell put its locks elsewhere, and a second PX4 flight armed the first's modules: hostile
-campaign 33)."""
+"""Where the lock directory lives: fixed, not ``TMPDIR`` or ``XDG_RUNTIME_DIR`` (set otherwise in a second shell,
+they put its locks elsewhere, and a second PX4 flight armed the first's modules: hostile campaign 33)."""
+OTHER_HOST_ENV = "GROUNDSTATION_OTHER_HOST_LOCKS"
+"""A directory named here stands for another host's locks (the tests' second ground station "elsewhere", on this
+machine): only this variable, named for what it does, moves them."""
 
 
 def lock_dir() -> Path:
     """``/tmp/groundstation-links-<uid>``: per user (mode 700)."""
-    return LOCK_BASE / f"groundstation-links-{os.getuid()}"
+    base = Path(os.environ[OTHER_HOST_ENV]) if os.environ.get(OTHER_HOST_ENV) else LOCK_BASE
+    return base / f"groundstation-links-{os.getuid()}"
 
 
 class LinkLocks:

@@ -144,7 +144,7 @@ def f_second_fly_on_this_host(cli, tmp_path):
               "first flight completes")
 def f_second_ground_station_elsewhere(cli, tmp_path):
     with _peer(tmp_path, "crazyflie") as cfg:
-        res, code, err = _second_fly(cfg, tmp_path, {"XDG_RUNTIME_DIR": str(tmp_path / "other-host")})
+        res, code, err = _second_fly(cfg, tmp_path, {"GROUNDSTATION_OTHER_HOST_LOCKS": str(tmp_path / "other-host")})
     assert res.phase == "done" and res.nominal, res.reason
     assert code == 2 and err.count("flies for another ground station (session ") == 2, err
 

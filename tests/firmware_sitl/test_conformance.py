@@ -184,7 +184,7 @@ def test_one_ground_station_owns_the_modules_and_each_names_itself(kind, tmp_pat
         # Flying means armed commands streaming: arm() ends on disarmed zeros, and with links that open at once the
         # second claim could reach the modules before the thread's first armed command (a free module is claimed).
         assert wait_for(lambda: all(s is not None and s.armed for s in first.module_states()))
-        monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "other-host"))
+        monkeypatch.setenv("GROUNDSTATION_OTHER_HOST_LOCKS", str(tmp_path / "other-host"))
         with m.backend() as second:
             issues = second.preflight().issues
             assert issues == tuple(f"module {i} (udp://127.0.0.1:{19620 + i}) flies for another ground station "
