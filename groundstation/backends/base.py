@@ -173,6 +173,8 @@ Crazyflie's commands): a window is a noisy sample, and its plain share landed fl
 
 def wilson_lower(k: int, n: int, z: float) -> float:
     """Lower end of the Wilson score interval of ``k`` in ``n`` at ``z`` standard deviations."""
+    if k == 0:
+        return 0.0  # exactly (rounding left 3e-18, which a log reads as loss)
     p = k / n
     centre = p + z * z / (2 * n)
     spread = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))

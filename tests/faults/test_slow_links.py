@@ -118,7 +118,7 @@ def f_px4_relay_answering_timesync_for_the_module(cli, tmp_path):
                           answer_timesync=True)
 
 
-@link_or_load("PX4 links: in flight, a relay answers the TIMESYNC probes itself at once and loses 40 % of everything "
+@link_or_load("PX4 links: in flight, a relay answers the TIMESYNC probes itself at once and loses 25 % of everything "
               "else each way",
               "the module's own messages missing from their sequence numbers measure the loss the answers hide: "
               "named, a landing, upright, exit 1 (before: read 0 % loss, the flight went on, the log said 0)")
