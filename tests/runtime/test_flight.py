@@ -273,3 +273,55 @@ def test_a_request_while_arming_disarms_before_take_off():
         assert flight.phase == "aborted" and flight.reason == ("stopped by the operator while arming (SIGINT): "
                                                                "disarmed before take-off")
         assert be.stops == 0 and not be.armed and be.telemetry().motors.max() == 0.0
+
+
+class SlowLinks(PyBulletBackend):
+    """Both modules' round trips as ``rtt_at(t)`` says (``t`` since ``t0``, s; the round trip s, NaN for unmeasured),
+    as a hardware backend reports them."""
+
+    def __init__(self, asm, rtt_at):
+        super().__init__(asm)
+        self._rtt_at, self.t0 = rtt_at, 0.0
+
+    def telemetry(self):
+        tel = super().telemetry()
+        return type(tel)(**{**tel.__dict__, "link_latency_s": np.full(2, self._rtt_at(self.time - self.t0))})
+
+
+def test_a_bandwidth_cut_for_a_slow_link_holds_for_the_rest_of_the_flight(monkeypatch):
+    """Round trips of 20 ms, then 16 ms, then unmeasured, then 30 ms, then back to 5 ms: the gains are cut for the
+    worst seen so far at every period from the first slow one on (a relay's forged answers read 16-18 ms against
+    its 20, and recut at each period the landing swung 25 deg at 4 Hz; an unmeasured round trip is not a fast
+    one), said once."""
+    import groundstation.runtime.flight as flight_module
+    from groundstation.control.geometric import Gains, delay_limited
+
+    steps = [(2.0, 0.020), (2.3, 0.016), (2.5, float("nan")), (2.7, 0.030), (2.9, 0.005)]
+
+    def rtt_at(t):
+        return next((rtt for start, rtt in reversed(steps) if t >= start), 0.003)
+
+    used = []
+    real_control = flight_module.control
+    monkeypatch.setattr(flight_module, "control",
+                        lambda state, sp, model, gains: used.append(gains) or real_control(state, sp, model, gains))
+    asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+    policy = FailsafePolicy(on_link_degraded="land")
+    with SlowLinks(asm, rtt_at) as be:
+        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 2.0))
+        flight = Flight(asm, plan, ready(be), PhysicsPoseSource(be), policy=policy, record=True)
+        be.t0 = be.time  # the flight's t = 0
+        flight.run(SimClock(be), 250.0)
+    t = np.array(flight.recording.t)
+    hz = np.array([g.attitude_hz for g in used[-len(t):]])
+    period, bound = 1 / 250, policy.max_link_latency_s + 1 / 250
+    full = Gains().attitude_hz
+    # The backend's telemetry is read at the period's start, before the physics steps to it: a period late.
+    late = 1.5 / 250
+    assert np.all(hz[t < steps[0][0]] == full)
+    expect_20 = delay_limited(Gains(), 0.020 + period, bound).attitude_hz
+    expect_30 = delay_limited(Gains(), 0.030 + period, bound).attitude_hz
+    assert np.allclose(hz[(t > steps[0][0] + late) & (t < steps[3][0])], expect_20)  # 16 ms and NaN: held
+    assert np.allclose(hz[t > steps[3][0] + late], expect_30)  # 30 ms: cut further, then held at 5 ms
+    assert flight.phase == "done" and flight.reason.startswith("link degraded")
+    assert len([text for _, _, text in flight.events if "bandwidths cut" in text]) == 1
