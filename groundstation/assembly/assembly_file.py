@@ -170,8 +170,9 @@ def _geometry(record: dict, src: str) -> Assembly:
         topo = Topology.from_code(record["topology"]["code"])
     except (KeyError, TypeError, TopologyError) as exc:
         raise ConfigError(f"invalid topology: {exc}", path=src, key="topology.code") from None
-    if [list(c) for c in topo.cells] != record["topology"].get("cells", [list(c) for c in topo.cells]):
-        raise ConfigError("cells disagree with the topology code", path=src, key="topology.cells")
+    for name, derived in (("cells", topo.cells), ("edges", topo.edges)):
+        if name in record["topology"] and not _same_whole_numbers(record["topology"][name], derived):
+            raise ConfigError(f"{name} disagree with the topology code", path=src, key=f"topology.{name}")
     if record["n"] != topo.n or isinstance(record["n"], bool):
         raise ConfigError(f"says {record['n']!r}, but {topo.code} has {topo.n} modules", path=src, key="n")
     alpha = np.radians(_numbers(record["angles_deg"], src, "angles_deg", (topo.n + 1,)))
@@ -179,6 +180,17 @@ def _geometry(record: dict, src: str) -> Assembly:
         raise ConfigError("angles must lie in [-90, 90] degrees", path=src, key="angles_deg")
     yaw = float(np.radians(_numbers(record["yaw_deg"], src, "yaw_deg", ())))
     return Assembly(topo, params, alpha, yaw)
+
+
+def _same_whole_numbers(stored, derived) -> bool:
+    """``stored`` (from JSON) is ``derived``'s pairs element for element, each a JSON integer: Python's ``True == 1``
+    would take a boolean for a cell's coordinate."""
+    def exact(value):
+        if isinstance(value, list):
+            return [exact(v) for v in value]
+        return value if type(value) is int else None  # bool and float are not the code's cells
+
+    return exact(stored) == [list(pair) for pair in derived]
 
 
 def _disagrees(src: str, key: str, what: str = "the value computed from the angles") -> ConfigError:

@@ -87,6 +87,9 @@ def test_round_trip(tmp_path):
     (lambda r: r.update(angles_deg=[0, 0, 120, 0]), "angles_deg"),
     (lambda r: r["module_params"].update(mass=-1), "module_params.mass"),
     (lambda r: r["topology"].update(code="oX"), "topology.code"),
+    (lambda r: r["topology"]["edges"][0].__setitem__(0, bool(r["topology"]["edges"][0][0])), "topology.edges"),
+    (lambda r: r["topology"]["edges"].pop(), "topology.edges"),
+    (lambda r: r["topology"]["cells"][1].__setitem__(1, float(r["topology"]["cells"][1][1])), "topology.cells"),
     (lambda r: r.pop("modules"), "modules"),
     (lambda r: r.update(format="other"), "format"),
 ])
