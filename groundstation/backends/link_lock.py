@@ -45,7 +45,8 @@ def _address(host: str) -> str:
     """The address a link's host name or number reaches, as the link resolves it (``vm`` from /etc/hosts, ``127.1``,
     ``0x7f000001``, ``2130706433`` are all 127.0.0.1: spelled so, they passed the lock, hostile campaign 31); every
     loopback and the unspecified address (which reaches this host) are one: a module served here may listen on
-    any of them."""
+    any of them, and so is an address of one of this host's own interfaces (a module served here on 0.0.0.0 answers
+    on it too: spelled so, it passed the lock, hostile campaign 33)."""
     try:
         found = {info[4][0] for info in socket.getaddrinfo(host.rstrip(".") or "localhost", None,
                                                           proto=socket.IPPROTO_UDP)}
@@ -55,8 +56,19 @@ def _address(host: str) -> str:
     for a in found:
         ip = ipaddress.ip_address(a.split("%")[0])
         ip = ip.ipv4_mapped or ip if isinstance(ip, ipaddress.IPv6Address) else ip
-        addresses.add("loopback" if ip.is_loopback or ip.is_unspecified else str(ip))
+        addresses.add("this host" if ip.is_loopback or ip.is_unspecified or _assigned_here(ip) else str(ip))
     return min(addresses)  # a name with several addresses: the link takes the first; any one names it alike
+
+
+def _assigned_here(ip: ipaddress.IPv4Address | ipaddress.IPv6Address) -> bool:
+    """``ip`` is one of this host's own addresses: a socket binds to it only then (no interface list to parse)."""
+    family = socket.AF_INET6 if ip.version == 6 else socket.AF_INET
+    try:
+        with socket.socket(family, socket.SOCK_DGRAM) as s:
+            s.bind((str(ip), 0))
+    except OSError:
+        return False
+    return True
 
 
 LOCK_BASE = Path("/tmp")

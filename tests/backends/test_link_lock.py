@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -46,6 +47,18 @@ def test_a_link_another_process_holds_is_refused_naming_it_and_the_holder():
     assert lock_dir().stat().st_mode & 0o777 == 0o700  # per user: no other account can hold or fake a lock
 
 
+def _own_interface_addresses() -> list[str]:
+    """This host's non-loopback IPv4 address its default route leaves by (a UDP socket's connect sends nothing);
+    none on a machine without a route."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.connect(("192.0.2.1", 9))  # TEST-NET-1: only the route is looked up
+        except OSError:
+            return []
+        address = s.getsockname()[0]
+    return [] if address.startswith("127.") else [address]
+
+
 def test_a_link_spelled_another_way_is_the_same_link():
     """A second flight naming the held modules by another spelling of their links is refused (it passed before,
     and only the modules' own checks kept it off: hostile campaign 30)."""
@@ -67,6 +80,8 @@ def test_a_link_spelled_another_way_is_the_same_link():
              if line.split()[:1] == ["127.0.0.1"] and len(line.split()) > 1}
     for name in hosts:  # a name /etc/hosts gives this host (the link resolves it so)
         assert link_key(f"udp://{name}:19852") == link_key("udp://127.0.0.1:19852"), name
+    for address in _own_interface_addresses():  # a module served here answers on them too (campaign 33)
+        assert link_key(f"udp://{address}:19852") == link_key("udp://127.0.0.1:19852"), address
     holder = _holder("udp://127.0.0.1:19852")
     try:
         with pytest.raises(LinkError, match="is in use by another flight on this host"):
