@@ -84,12 +84,20 @@ MIN_LOSS_SAMPLES = 10
 REORDER_WINDOW = 64
 """A state whose batch count (received + dropped, mod 65536) is up to this far behind the newest is an older one
 overtaken on the link; farther, the module restarted its counts."""
+CROSSED_ADVANCE = 1000
+"""A state that breaks from its way's module's counts is another module's if it goes on from that one's newest by
+at most this many batches (4 s of commands at 250 Hz: a swapped link's states come within a claim period)."""
 ECHO_WINDOW = 1000
 """A module flying on a command this backend sent is echoing one of its newest sequence numbers (4 s at 250 Hz);
 an echo outside them is another sender's command (its sequence numbers ahead of ours, so the module drops ours)."""
 CLAIM_SILENCE_S = 0.25
-"""In flight, a module whose claim answers stopped this long (five claims) can no longer be shown to be on its link:
-the flight lands (a relay that holds the answers back would otherwise hide a swap that follows), s."""
+"""In flight, a module whose claim answers stopped this long can no longer be shown to be on its link: the flight
+lands (a relay that holds the answers back would otherwise hide a swap that follows), s. Its claims go out every
+:data:`CLAIM_CHASE_S` once an answer is overdue, so the silence is some 16 claims unanswered, not four: at the loss
+a link may fly with (10 % each way) four in a row went unanswered in a third of 16 s flights, sixteen in under 1e-8."""
+CLAIM_CHASE_S = 0.012
+"""A module whose claim answer is overdue (none for :data:`IDENTITY_PERIOD_S` and this) is claimed this often until
+one comes, s: three periods at 250 Hz, so a slow radio's queue of claims never holds the commands back."""
 STARVED_STATES = 5
 """A module whose states report this many batches in a row of only dropped commands gets none of ours with its
 token: after a re-route, the commands' way was swapped too (its partner's link carries them)."""
@@ -285,11 +293,13 @@ class _Module:
         """When the newest claim answer came on this module's way in, s."""
         self.starved = 0
         """States in a row that report only dropped commands (none of ours accepted)."""
+        self.claimed = -np.inf
+        """When this module was last claimed in flight, s."""
         self.claims_silent = False
         """Its claims' silence was said (once a flight)."""
         self.partner: int | None = None
         """The module whose way in this one's traded places with (a re-route), until their commands' ways are
-        settled too."""
+        settled too: traded, or this module accepts ours again."""
         self.token = 0
         """The token the module gave this backend's session (0: not claimed)."""
         self.unknown = 0
@@ -298,6 +308,11 @@ class _Module:
 
 def _age_text(age: float) -> str:
     return "never heard" if not np.isfinite(age) else f"for {age * 1e3:.0f} ms"
+
+
+def _batches(st: wire.ModuleState) -> int:
+    """Batches the module has answered since boot (mod 65536): each accepted or dropped command counts one."""
+    return st.received + st.dropped
 
 
 def _signed16(x: int) -> int:
@@ -586,10 +601,16 @@ class CrazyflieBackend(BackendBase):
         if self._isolated:  # only after a module fault: nothing on the normal per-period path
             fractions[sorted(self._isolated)] = 0.0
         self._send_all(fractions, armed=self._armed)
-        if self._armed and self._clock() - self._identity_sent >= IDENTITY_PERIOD_S:
-            self._identity_sent = self._clock()
-            claim = CRTPPacket(wire.APP_HEADER, wire.Claim(self.session).pack())
-            for m in self._modules:
+        if not self._armed:
+            return
+        now = self._clock()
+        regular = now - self._identity_sent >= IDENTITY_PERIOD_S
+        self._identity_sent = now if regular else self._identity_sent
+        claim = CRTPPacket(wire.APP_HEADER, wire.Claim(self.session).pack())
+        for m in self._modules:
+            overdue = now - m.answered > IDENTITY_PERIOD_S + CLAIM_CHASE_S and now - m.claimed >= CLAIM_CHASE_S
+            if regular or overdue:
+                m.claimed = now
                 m.sender.post(claim, True)  # not in the command's slot: a newer command would supersede it
 
     def isolate(self, modules) -> bool:
@@ -782,7 +803,8 @@ class CrazyflieBackend(BackendBase):
                         st = wire.ModuleState.unpack(data)
                     except ValueError:
                         continue
-                    self._on_state(i, m, st, now, before if arrival is None else arrival)
+                    k = self._whose_state(i, st)
+                    self._on_state(k, self._modules[k], st, now, before if arrival is None else arrival)
                 elif wire.same_port(pk.header, wire.SUPERVISOR_HEADER):
                     m.arm_reply = wire.arm_response(data) or m.arm_reply
                 elif wire.same_port(pk.header, wire.VERSION_HEADER):
@@ -830,9 +852,10 @@ class CrazyflieBackend(BackendBase):
         After a re-route, they go down its partner's link; else, when exactly one other module starves too (a relay
         swapped only the commands' ways, or swapped them back), down that one's (:data:`MAX_TRADES` a flight).
         Otherwise the module is faulty."""
-        others = [k for k, o in enumerate(self._modules) if k != i and o.starved > 0]
-        j = m.partner if m.partner is not None else (
-            others[0] if len(others) == 1 and self._trades < MAX_TRADES else None)
+        # Starving too: more than one batch (a duplicated or overtaken one drops alone on a healthy module).
+        others = [k for k, o in enumerate(self._modules) if k != i and o.starved > STARVED_STATES // 2]
+        j = m.partner if m.partner is not None else others[0] if len(others) == 1 else None
+        j = j if self._trades < MAX_TRADES else None
         if j is None and not others and m.starved < 2 * STARVED_STATES:
             return  # the other may not have reported its first drop yet
         if j is None:
@@ -851,6 +874,19 @@ class CrazyflieBackend(BackendBase):
         if note not in self.rerouted:
             self.rerouted = f"{self.rerouted}; {note}" if self.rerouted else note
 
+    def _whose_state(self, i: int, st: wire.ModuleState) -> int:
+        """The module a state on module i's way in came from: i's, unless its counts break from i's newest
+        (farther behind than a reordering, or ahead by more than :data:`CROSSED_ADVANCE`) but go on from exactly
+        one other module's newest, by at most that (a relay that swapped the links: until the claims re-route the
+        ways in, the other's states come on this way, and judged against this module's counts, which differ by the
+        modules' loss histories since boot, read as a reboot: a module fault, on the V a stop)."""
+        own = self._modules[i].state
+        if own is None or -REORDER_WINDOW < _signed16(_batches(st) - _batches(own)) <= CROSSED_ADVANCE:
+            return i
+        others = [k for k, o in enumerate(self._modules) if k != i and o.state is not None and
+                  0 < _signed16(_batches(st) - _batches(o.state)) <= CROSSED_ADVANCE]
+        return others[0] if len(others) == 1 else i
+
     def _on_state(self, i: int, m: _Module, st: wire.ModuleState, now: float, arrived: float) -> None:
         """``arrived``: when the state reached this machine (the kernel's stamp), or on a driver that does not say,
         the poll before this one (a lower bound)."""
@@ -860,7 +896,7 @@ class CrazyflieBackend(BackendBase):
             # Every state answers a batch of at least one packet, accepted or dropped: received + dropped rises with
             # each. A state that does not advance it was overtaken on a reordering or duplicating link; one that
             # falls far was sent by a module that restarted its counts.
-            advance = _signed16(st.received + st.dropped - previous.received - previous.dropped)
+            advance = _signed16(_batches(st) - _batches(previous))
             if -REORDER_WINDOW < advance <= 0:
                 return  # an older or repeated state: the newer one stands
             restarted = advance <= -REORDER_WINDOW
@@ -868,6 +904,8 @@ class CrazyflieBackend(BackendBase):
         if self._armed and previous is not None and not restarted:
             accepted = _signed16(st.received - previous.received)
             m.starved = 0 if accepted > 0 else m.starved + (_signed16(st.dropped - previous.dropped) > 0)
+            if accepted > 0:
+                m.partner = None  # its commands reach it: a re-route's ways in alone were swapped
             if m.starved >= STARVED_STATES:
                 self._starved(i, m)
         if self._armed and not m.fault:

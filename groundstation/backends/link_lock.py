@@ -2,9 +2,9 @@
 
 A second ``fly`` (or ``params``) against links another process holds is refused before it sends anything: its
 preflight would otherwise stream zero commands into modules that are flying for the first. The lock is an
-``flock`` on a file per link in the user's runtime directory; the kernel releases it when the holder exits,
-however it exits, so a crashed flight never leaves a stale lock. Ground stations on other hosts are kept off by
-the module itself (the motor app's owner, contract 3).
+``flock`` on a file per link in ``/tmp/groundstation-links-<uid>`` (:func:`lock_dir`); the kernel releases it when
+the holder exits, however it exits, so a crashed flight never leaves a stale lock. Ground stations on other hosts
+are kept off by the module itself (the motor app's owner, contract 3).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import ipaddress
 import os
 import re
 import socket
+import stat
 from pathlib import Path
 
 from groundstation.errors import LinkError
@@ -85,6 +86,21 @@ def lock_dir() -> Path:
     return base / f"groundstation-links-{os.getuid()}"
 
 
+def _own_lock_dir() -> Path:
+    """:func:`lock_dir`, made if missing; refused unless it is a directory (not a link) of this user's that no one
+    else may write: its name is known to every account, which could make it first and hold or swap the locks."""
+    path = lock_dir()
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = os.lstat(path)
+    except OSError as exc:
+        raise LinkError(f"cannot make the link lock directory {path}: {exc}") from None
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+        raise LinkError(f"the link lock directory {path} is not this user's alone (owner uid {st.st_uid}, mode "
+                        f"{stat.S_IMODE(st.st_mode):o}{', a link' if stat.S_ISLNK(st.st_mode) else ''}): remove it")
+    return path
+
+
 class LinkLocks:
     """Locks for a set of link URIs, taken together (all or none)."""
 
@@ -98,13 +114,18 @@ class LinkLocks:
 
     def acquire(self) -> None:
         """Take every link's lock; raises :class:`LinkError` naming the link and the holder's pid if one is held."""
-        lock_dir().mkdir(mode=0o700, parents=True, exist_ok=True)
+        directory = _own_lock_dir()
         try:
             first: dict[str, str] = {}  # a link listed twice (however spelled) is the preflight's business
             for uri in self.uris:
                 first.setdefault(link_key(uri), uri)
             for uri in first.values():
-                fh = open(self._path(uri), "a+")  # noqa: SIM115 - held open while the link is in use
+                try:  # never through a link planted in the directory
+                    fd = os.open(directory / self._path(uri).name, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW |
+                                 os.O_CLOEXEC, 0o600)
+                except OSError as exc:
+                    raise LinkError(f"cannot lock {uri.strip()}: {exc}") from None
+                fh = os.fdopen(fd, "r+")
                 try:
                     fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except BlockingIOError:

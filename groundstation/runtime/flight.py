@@ -100,6 +100,9 @@ DISPUTE_FRESH_S = 0.1
 copied id, an outage) nothing disputes the gyros, and a landing flown on them alone must keep them."""
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
+CUT_SAID_AGAIN = 1.1
+"""A bandwidth cut for a loop delay this many times the last one said is said again (the gains flown deepen with
+the square of the delay: the log's figures are the ones flown, within about 20 %)."""
 RATE_WINDOW_S = 1.0
 """The status line's loop rate is the number of periods run over this long, s."""
 
@@ -467,6 +470,8 @@ class Flight:
         self._rate_window = (0.0, 0)
         """(loop time s, periods run) at the start of the current rate window."""
         self._rate_hz: float | None = None
+        self._said_cut_delay_s = 0.0
+        """The delay of the last cut the log was told of, s."""
         self._cut_delay_s: float | None = None
         """The longest loop delay (the links' mean round trip and a period) the gains have been cut for
         (:func:`delay_limited`), s; None while no link was slow. Held for the rest of the flight: a round trip that
@@ -746,12 +751,17 @@ class Flight:
             if severe or self.policy.on_link_degraded == "stop":
                 self._emergency(t, degraded)
                 return False
-            # In the plan's landing, each kind named once (it goes on): a link re-routed there was never said.
+            # In a landing (the plan's or ours), each kind named once and the landing goes on as it is: a link
+            # re-routed there was never said, and re-planned at each new note, a relay swapping back and forth
+            # lengthened it each time.
             kind = re.sub(r"\d+(\.\d+)?", "#", degraded)  # its figures change every period
-            if state is not None and (self.phase.airborne or (self.phase == Phase.LANDING and
-                                                                kind not in self._link_named)):
+            if state is not None and self.phase.airborne:
                 self._begin_landing(t, state, degraded)
-            self._link_named.add(kind)
+                self._link_named.add(kind)
+            elif self.phase == Phase.LANDING and kind not in self._link_named:
+                self._event(t, "warning", f"{degraded}: the landing goes on")
+                self.reason = self.reason or degraded
+                self._link_named.add(kind)
         fault = self.pose.fault() or est.fault()
         if fault:
             why = f"mocap fault: {fault}"
@@ -876,11 +886,12 @@ class Flight:
             delay = float(np.nanmean(lat)) + period
             if delay > self.policy.max_link_latency_s + period and math.isfinite(delay) and \
                     (self._cut_delay_s is None or delay > self._cut_delay_s):
-                if self._cut_delay_s is None:
+                if self._cut_delay_s is None or delay > self._said_cut_delay_s * CUT_SAID_AGAIN:
                     cut = delay_limited(gains, delay, self.policy.max_link_latency_s + period)
                     self._event(t, "warning", f"attitude and position bandwidths cut to {cut.attitude_hz:.2f} and "
                                               f"{cut.position_hz:.2f} Hz for the links' mean round trip "
                                               f"{(delay - period) * 1e3:.0f} ms")
+                    self._said_cut_delay_s = delay
                 self._cut_delay_s = delay
         if self._cut_delay_s is not None:
             gains = delay_limited(gains, self._cut_delay_s, self.policy.max_link_latency_s + period)
@@ -970,13 +981,18 @@ class Flight:
         are too slow even to land on."""
         p = self.policy
         lat, loss = telemetry.link_latency_s, telemetry.link_loss
+        slow = lat.size and np.nanmax(lat, initial=0.0) > p.max_link_latency_s
+        i = int(np.nanargmax(lat)) if slow else 0
+        if slow and lat[i] > p.link_stop_latency_s:
+            # Checked before a re-route's note, which would otherwise stand for the link for the rest of the flight:
+            # a link too slow to land on stops the motors whatever else it did.
+            return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > " \
+                   f"{p.link_stop_latency_s * 1e3:g} ms", True
         if telemetry.rerouted:
             return f"link degraded: {telemetry.rerouted}", False
-        if lat.size and np.nanmax(lat, initial=0.0) > p.max_link_latency_s:
-            i = int(np.nanargmax(lat))
-            severe = lat[i] > p.link_stop_latency_s
-            bound = p.link_stop_latency_s if severe else p.max_link_latency_s
-            return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > {bound * 1e3:g} ms", severe
+        if slow:
+            return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > {p.max_link_latency_s * 1e3:g} ms", \
+                False
         if loss.size and np.nanmax(loss, initial=0.0) > p.max_link_loss:
             i = int(np.nanargmax(loss))
             return f"link degraded: module {i} loses {loss[i]:.0%} of its packets > {p.max_link_loss:.0%}", False

@@ -212,16 +212,21 @@ def _applied(peer) -> list[np.ndarray]:
     return [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
 
 
-@pytest.mark.parametrize("way, port", [("both", 19760), ("answers", 19766), ("commands", 19778)])
-def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed(way, port):
+@pytest.mark.parametrize("way, port, counts_apart", [("both", 19760, 0), ("answers", 19766, 0),
+                                                     ("commands", 19778, 0), ("both", 19790, 20000)])
+def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed(way, port, counts_apart):
     """Fresh modules all give token 1: preflight claims again until each module's token is its own, so a command
     down the wrong link is dropped. A relay swaps the two links in flight: the claims' answers name the other
     modules, the ways in trade places (each module's states its own); where the commands' way was swapped too
     (both ways), the modules then drop every command and the commands' ways trade places as well; where only the
     answers' was, they stay; where only the commands' was, the answers say nothing and the two modules dropping every
-    command trade theirs. Each module flies its own commands again; said in the telemetry (the flight lands)."""
+    command trade theirs. Each module flies its own commands again; said in the telemetry (the flight lands).
+    ``counts_apart``: module 1 has answered that many more batches since boot than module 0, as real modules' loss
+    histories make them (the other module's states on a swapped way, judged against its own counts, read as a
+    reboot: a module fault, on the V a stop; simulated modules started together hid it)."""
     with _relayed_peer(port, port + 4, port - 12258, swap_after_s=3.0, swap_way=way) as peer, \
             backend(port + 4) as be:
+        peer.firmware(1).app.received = counts_apart
         assert be.preflight().ok
         tokens = [peer.firmware(i).app.owner_token for i in range(2)]
         assert tokens[0] != tokens[1] and all(tokens), tokens
@@ -246,7 +251,8 @@ def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed(way,
 
 def test_a_module_whose_claims_go_unanswered_in_flight_is_named():
     """A relay that holds back one module's claim answers (to hide a swap that follows): 0.25 s later the flight
-    is told its link can no longer be checked, naming the module (it lands on it)."""
+    is told its link can no longer be checked, naming the module (it lands on it). Meanwhile it is claimed every
+    12 ms, not every 50: the silence is many claims, which a lossy link's chance alone does not silence."""
     with _relayed_peer(19772, 19776, 7516) as peer, backend(19776) as be:
         assert be.preflight().ok
         be.arm()
@@ -254,10 +260,15 @@ def test_a_module_whose_claims_go_unanswered_in_flight_is_named():
         hold(be, u, 0.2)
         firmware = peer.firmware(1)
         answer = firmware._app_packet
-        firmware._app_packet = lambda body, now: [] if wire.Claim.unpack(body) else answer(body, now)
+        claims = []
+        firmware._app_packet = lambda body, now: (claims.append(now) or []) if wire.Claim.unpack(body) else \
+            answer(body, now)
         hold(be, u, 0.15)
-        assert be.telemetry().rerouted == ""  # three claims unanswered: not yet
-        hold(be, u, 0.3)
+        assert be.telemetry().rerouted == ""  # not yet
+        hold(be, u, 0.1)
+        chased = np.diff([t for t in claims if t > claims[0] + 0.08])  # answers overdue from ~62 ms on
+        assert chased.size >= 3 and np.median(chased) < 0.03, np.diff(claims)
+        hold(be, u, 0.2)
         said = be.telemetry().rerouted
         assert said.startswith(f"module 1 (udp://127.0.0.1:19777, {be.module_ids()[1]}) has answered no claim for "
                                ) and said.endswith("ms: its link can no longer be checked"), said

@@ -140,3 +140,33 @@ def test_params_on_links_a_flight_holds_is_refused(cli, tmp_path):
         holder.communicate("")
     assert code != 0 and err.count("\n") == 1 and "udp://127.0.0.1:19857 is in use by another flight on this " \
         f"host (pid {holder.pid})" in err, err
+
+
+def test_a_lock_directory_another_account_could_write_is_refused(tmp_path, monkeypatch):
+    """The lock directory's name is known to every account: one made first by someone else (or opened to others,
+    or a link to elsewhere) could hold or swap the locks, so it is refused, naming it; a lock file replaced by a link
+    is never followed."""
+    monkeypatch.setenv("GROUNDSTATION_OTHER_HOST_LOCKS", str(tmp_path))
+    directory = lock_dir()
+    directory.mkdir(mode=0o777)
+    directory.chmod(0o777)  # past the umask: anyone may write it
+    with pytest.raises(LinkError, match=r"groundstation-links-\d+ is not this user's alone .*mode 777"):
+        LinkLocks(["udp://127.0.0.1:19852"]).acquire()
+    directory.rmdir()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir(mode=0o700)
+    directory.symlink_to(elsewhere)
+    with pytest.raises(LinkError, match="a link"):
+        LinkLocks(["udp://127.0.0.1:19852"]).acquire()
+    directory.unlink()
+    locks = LinkLocks(["udp://127.0.0.1:19852"])
+    locks.acquire()
+    locks.release()
+    target = tmp_path / "victim.txt"
+    target.write_text("kept")
+    for lock_file in directory.iterdir():
+        lock_file.unlink()
+        lock_file.symlink_to(target)
+    with pytest.raises(LinkError, match="cannot lock udp://127.0.0.1:19852"):
+        LinkLocks(["udp://127.0.0.1:19852"]).acquire()
+    assert target.read_text() == "kept"

@@ -292,7 +292,7 @@ def test_a_bandwidth_cut_for_a_slow_link_holds_for_the_rest_of_the_flight(monkey
     """Round trips of 20 ms, then 16 ms, then unmeasured, then 30 ms, then back to 5 ms: the gains are cut for the
     worst seen so far at every period from the first slow one on (a relay's forged answers read 16-18 ms against
     its 20, and recut at each period the landing swung 25 deg at 4 Hz; an unmeasured round trip is not a fast
-    one), said once."""
+    one), each deeper cut said."""
     import groundstation.runtime.flight as flight_module
     from groundstation.control.geometric import Gains, delay_limited
 
@@ -324,4 +324,28 @@ def test_a_bandwidth_cut_for_a_slow_link_holds_for_the_rest_of_the_flight(monkey
     assert np.allclose(hz[(t > steps[0][0] + late) & (t < steps[3][0])], expect_20)  # 16 ms and NaN: held
     assert np.allclose(hz[t > steps[3][0] + late], expect_30)  # 30 ms: cut further, then held at 5 ms
     assert flight.phase == "done" and flight.reason.startswith("link degraded")
-    assert len([text for _, _, text in flight.events if "bandwidths cut" in text]) == 1
+    said = [text for _, _, text in flight.events if "bandwidths cut" in text]  # each cut said: 20 ms, then 30
+    assert len(said) == 2 and "round trip 20 ms" in said[0] and "round trip 30 ms" in said[1], said
+
+
+def test_a_link_too_slow_to_land_on_stops_the_motors_after_a_re_route():
+    """A re-route's note lands the flight; the round trip then passing the stop bound (60 ms > 50) stops the
+    motors all the same (the note stood for the link for the rest of the flight: the bound was never read again),
+    and the re-route is said once, in the landing."""
+    class Rerouted(SlowLinks):
+        def telemetry(self):
+            tel = super().telemetry()
+            note = "module 1's messages came on module 0's link" if self.time - self.t0 >= 2.0 else ""
+            return type(tel)(**{**tel.__dict__, "rerouted": note})
+
+    asm, _ = load_assembly(ROOT / "configs/assemblies/toy_v2.json")
+    with Rerouted(asm, lambda t: 0.060 if t >= 2.3 else 0.003) as be:
+        plan = FlightPlan(tuple(be.start_position), Hover((0, 0, 1.0), 2.0))
+        flight = Flight(asm, plan, ready(be), PhysicsPoseSource(be), record=True)
+        be.t0 = be.time
+        flight.run(SimClock(be), 250.0)
+    assert flight.phase == "emergency" and "round trip 60 ms > 50 ms" in flight.reason, flight.reason
+    said = [text for _, _, text in flight.events if "came on" in text]
+    assert len(said) == 1 and said[0].endswith("-> landing: link degraded: module 1's messages came on module 0's "
+                                               "link"), said
+    assert abs(flight.recording.t[-1] - 2.3) < 0.02  # stopped within a few periods of the round trip
