@@ -95,6 +95,9 @@ class MavlinkSettings:
     went within a millisecond or two."""
 
 
+SEQUENCE_RESYNC = 4
+"""A module's messages this many in a row in order, all behind its newest, are where its sequence went on after
+128 or more were lost (a duplicate or an overtaken message comes alone)."""
 HEARTBEAT_S = 1.0
 """Ground-station heartbeat interval, s (PX4's data-link loss check listens for it)."""
 ARM_GRACE_S = 1.0
@@ -157,6 +160,10 @@ class _Module:
         """The newest round trips measured, s."""
         self.last_seq: int | None = None
         """The MAVLink sequence number of the module autopilot's newest message (its link counts them, mod 256)."""
+        self.behind = 0
+        """The module's newest messages in a row that came in order behind :attr:`last_seq`."""
+        self.behind_seq = 0
+        """The newest of them."""
         self.seq_gaps: deque[tuple[float, int]] = deque()
         """(when, messages missing just before it) of each of the module's messages in order, oldest first: what
         its way to us loses, which a relay answering the probes itself does not hide (hostile campaign 31)."""
@@ -221,7 +228,7 @@ class MavlinkBackend(BackendBase):
             m.answer_clock.clear()
             m.attitude_clock.clear()
             m.seq_gaps.clear()
-            m.last_seq = None
+            m.last_seq, m.behind = None, 0
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
         while self._clock() < deadline and not all(m.battery_heard >= since and r and len(m.rtts) >= s.latency_samples
                                                    for m, r in zip(self._modules, requested, strict=True)):
@@ -250,6 +257,9 @@ class MavlinkBackend(BackendBase):
                    if answering[i] and self._modules[i].rtts and latency[i] > s.max_latency]
         issues += [f"module {i} is flight-terminated (reboot it)" for i, m in enumerate(self._modules) if m.terminated]
         issues += [f"module {i} is already armed" for i, m in enumerate(self._modules) if m.armed]
+        if self.rerouted:  # each link must reach its own module alone: a router or a shared network would land
+            # the flight at take-off (and a swap in preflight is a swap)
+            issues.append(f"{self.rerouted}: each link must carry its own module's messages alone")
         first: dict[int, int] = {}
         for i, m in enumerate(self._modules):
             if m.system_id is not None and first.setdefault(m.system_id, i) != i:
@@ -359,8 +369,9 @@ class MavlinkBackend(BackendBase):
             if len(judged) >= MIN_LOSS_PROBES:
                 lost = wilson_lower(len(judged) - sum(judged), len(judged), LOSS_CONFIDENCE_Z)
                 each_way = 1.0 - math.sqrt(1.0 - lost)
-            missing = sum(gap for _, gap in m.seq_gaps)  # the way back, counted by the module's own numbers
-            came = len(m.seq_gaps)
+            # The way back, counted by the module's own numbers (a link gone quiet keeps no old window).
+            gaps = [gap for t, gap in m.seq_gaps if t >= self._polled - LOSS_WINDOW_S]
+            missing, came = sum(gaps), len(gaps)
             back = wilson_lower(missing, missing + came, LOSS_CONFIDENCE_Z) if came >= MIN_LOSS_PROBES else np.nan
             out.append(np.nan if np.isnan(each_way) and np.isnan(back) else np.nanmax([each_way, back]))
         return np.array(out)
@@ -571,9 +582,18 @@ class MavlinkBackend(BackendBase):
 
     @staticmethod
     def _count_sequence(m: _Module, seq: int, now: float) -> None:
+        """Count one of the module's messages into :attr:`_Module.seq_gaps` by its MAVLink sequence number."""
         gap = (seq - m.last_seq - 1) & 0xFF if m.last_seq is not None else 0
         if gap >= 128:
-            return  # behind the newest: a duplicate or one overtaken (its gap was counted when it was skipped)
+            # Behind the newest: a duplicate or one overtaken (its gap was counted when it was skipped); unless
+            # such messages run on in order, from where the sequence went on after a burst of 128 or more lost
+            # (read as behind, the rest of the flight's messages counted nothing).
+            m.behind = m.behind + 1 if m.behind and seq == (m.behind_seq + 1) & 0xFF else 1
+            m.behind_seq = seq
+            if m.behind < SEQUENCE_RESYNC:
+                return
+            gap = (seq - SEQUENCE_RESYNC + 1 - m.last_seq - 1) & 0xFF  # at least: a multiple of 256 may hide too
+        m.behind = 0
         m.last_seq = seq
         m.seq_gaps.append((now, gap))
         while m.seq_gaps[0][0] < now - LOSS_WINDOW_S:

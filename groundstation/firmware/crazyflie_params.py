@@ -26,7 +26,7 @@ from cflib.crtp.udpdriver import UdpDriver
 
 from groundstation.backends import crtp_wire as wire
 from groundstation.backends.crazyflie import ensure_drivers
-from groundstation.firmware.params import ParamCheck, matches, outside_type
+from groundstation.firmware.params import ParamCheck, held_anyway, matches, outside_type
 
 ATTEMPTS = 5
 """Connections tried per module."""
@@ -265,6 +265,9 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
                 continue
             group, short = name.split(".")
             actual = float(cf.param.values[group][short])
+            if why := outside_type(expected, element.ctype):  # whether or not the module's value matches it
+                checks.append(ParamCheck(module, uri, name, expected, None, note=held_anyway(why, actual)))
+                continue
             if matches(actual, expected) and element.is_persistent():
                 # Right in RAM is not enough: a value set but never stored (by hand, or an interrupted apply) is
                 # lost at the reboot an emergency stop requires. Store it (only then: EEPROM wears) with --apply.
@@ -282,9 +285,6 @@ def check_crazyflie(uri: str, module: int, wanted: dict[str, float], apply: bool
             if element.access == ParamTocElement.RO_ACCESS:
                 checks.append(ParamCheck(module, uri, name, expected, actual,
                                          note="read-only: flash the firmware that has it right"))
-                continue
-            if why := outside_type(expected, element.ctype):
-                checks.append(ParamCheck(module, uri, name, expected, actual, note=why))
                 continue
             cf.param.add_update_callback(group=group, name=short, cb=values.on_update)
             seen = values.count(name)

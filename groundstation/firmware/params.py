@@ -55,6 +55,12 @@ def outside_type(value: float, ctype: str) -> str:
     return ""
 
 
+def held_anyway(why: str, actual: float) -> str:
+    """A file's value its parameter's type cannot hold (:func:`outside_type`), said whatever the module holds now:
+    a float of 1e-50 "matched" a module at 0, the same file value was "ok" on one module and refused on another."""
+    return f"{why} (the module holds {actual:g})"
+
+
 def matches(actual: float, expected: float) -> bool:
     """Parameters travel as float32 (MAVLink) or their C type: equal at float32 resolution."""
     return math.isclose(actual, expected, rel_tol=1e-6, abs_tol=1e-9)

@@ -12,7 +12,7 @@ from pathlib import Path
 from pymavlink import mavutil
 
 from groundstation.backends import mavlink_wire as mw
-from groundstation.firmware.params import ParamCheck, matches, outside_type
+from groundstation.firmware.params import ParamCheck, held_anyway, matches, outside_type
 
 mav = mavutil.mavlink
 ATTEMPTS = 3
@@ -73,9 +73,8 @@ def check_px4(link: str, module: int, wanted: dict[str, float], apply: bool = Fa
                 continue
             actual = mw.param_from_wire(msg.param_value, msg.param_type)
             written = False
-            if apply and not matches(actual, expected) and (why := outside_type(expected,
-                                                                         mw.PARAM_CTYPES.get(msg.param_type, ""))):
-                checks.append(ParamCheck(module, link, name, expected, actual, note=why))
+            if why := outside_type(expected, mw.PARAM_CTYPES.get(msg.param_type, "")):
+                checks.append(ParamCheck(module, link, name, expected, None, note=held_anyway(why, actual)))
                 continue
             if apply and not matches(actual, expected):
                 kind = msg.param_type

@@ -387,3 +387,63 @@ def test_a_module_whose_own_answers_do_not_come_is_refused(port, answers):
         assert be.preflight().issues == (f"module 0 (udpout:127.0.0.1:{port}) does not answer TIMESYNC: its "
                                          f"link's round trip cannot be measured",)
         assert np.isnan(be.link_latency()[0]) and be.link_loss()[0] > 0.5
+
+
+def _gaps(seqs) -> list[int]:
+    """The gaps counted for a module whose messages came with MAVLink sequence numbers ``seqs``, in that order."""
+    from groundstation.backends.mavlink import _Module
+
+    m = _Module(None)
+    for k, seq in enumerate(seqs):
+        MavlinkBackend._count_sequence(m, seq, now=k * 1e-3)
+    return [gap for _, gap in m.seq_gaps]
+
+
+def test_the_way_back_s_loss_is_counted_from_the_module_s_sequence_numbers():
+    """The gaps in the module's own numbers, mod 256: across the wrap, a duplicate and an overtaken message
+    count nothing (their gap was counted when skipped), a gap of 127 counts; a burst of 128-255 lost reads as
+    "behind" until four messages in a row go on in order from where the sequence went on (before, every later
+    message was taken for an old one and the loss was never counted)."""
+    assert _gaps([253, 254, 255, 0, 1]) == [0, 0, 0, 0, 0]  # the wrap loses nothing
+    assert _gaps([254, 0, 3]) == [0, 1, 2]
+    assert _gaps([10, 11, 11, 12]) == [0, 0, 0]  # a duplicate
+    assert _gaps([10, 12, 11, 13]) == [0, 1, 0]  # 11 overtaken: counted missing once, when skipped
+    assert _gaps([0, 128]) == [0, 127]
+    after_burst = [(10 + 200 + k) & 0xFF for k in range(6)]  # 199 lost after 10
+    assert _gaps([10, *after_burst]) == [0, 199, 0, 0]  # counted at the fourth in order, then each
+    assert _gaps([10, 210, 5, 212]) == [0]  # behind, but not in order: duplicates or overtaken, nothing counted
+
+
+def test_wilson_lower_bound():
+    """The low end of the Wilson interval against its closed form, and exactly 0 for nothing lost."""
+    from groundstation.backends.base import wilson_lower
+
+    assert wilson_lower(0, 250, 2.0) == 0.0
+    k, n, z = 25, 250, 2.0  # 10 % seen: the bound (Wilson 1927) at 2 sigma
+    p = k / n
+    expect = (p + z * z / (2 * n) - z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)
+    assert wilson_lower(k, n, z) == pytest.approx(expect) and 0.065 < wilson_lower(k, n, z) < 0.1
+    assert wilson_lower(250, 250, 2.0) == pytest.approx(1 - 4 / (250 + 4))  # all lost
+
+
+def test_a_link_carrying_another_module_s_messages_is_refused_in_preflight():
+    """A relay swaps the two links after a first preflight learnt each link's system id: the next preflight hears
+    each module on the other's link and refuses, naming it (before, it passed, armed and landed at take-off)."""
+    from sim.udp_relay import Faults, UdpRelay
+
+    peer, th = start_peer(14700, 7530)
+    relay = UdpRelay(14704, 14700, 2, Faults(swap_after_s=1.5))
+    relay_th = threading.Thread(target=relay.run, daemon=True)
+    relay_th.start()
+    try:
+        with MavlinkBackend(links(14704), U_MAX, ASM.module_rotations, UNTIMED) as be:
+            assert be.preflight().ok
+            time.sleep(1.6)  # past the swap (1.5 s after the relay's first packet)
+            issues = be.preflight().issues
+        said = [i for i in issues if i.endswith("each link must carry its own module's messages alone")]
+        assert len(said) == 1 and "module 0's messages (system id 1) came on module 1's link (udpout:127.0.0.1:14705)" \
+            in said[0] and "module 1's messages (system id 2) came on module 0's link" in said[0], issues
+    finally:
+        relay.stop()
+        relay_th.join(2)
+        stop_peer(peer, th)

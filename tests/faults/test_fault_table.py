@@ -492,20 +492,25 @@ def f_params_crazyflie_5_percent_loss(cli, tmp_path):
     assert code == 0 and len(rows) == 8 and all(r["ok"] for r in rows), err
 
 
-@bad_input("params --apply with a value its parameter's type cannot hold (a uint8 of 256) or a fraction for an integer",
-           "not written: one line naming the parameter and its type (fix the file), exit 1; the others applied "
-           "(before: a cflib struct.error traceback)")
+@bad_input("params (checked, or --apply) with a value its parameter's type cannot hold (a uint8 of 256) or a "
+           "fraction for an integer",
+           "not written: one line per module naming the parameter, its type and what the module holds (fix the "
+           "file), exit 1; the others applied (before: a cflib struct.error traceback; checked without --apply, a "
+           "plain mismatch)")
 def f_params_value_outside_its_type(cli, tmp_path):
     params = tmp_path / "params.toml"
-    for value, why in (("256", "256 is outside what a uint8_t parameter holds (0 to 255)"),
-                       ("0.5", "0.5 is not a whole number, as a uint8_t parameter must be")):
-        params.write_text((ROOT / "firmware_params/crazyflie.toml").read_text()
-                          .replace('"supervisor.tmblChckEn" = 0', f'"supervisor.tmblChckEn" = {value}'))
-        with _relayed(tmp_path) as cfg:
-            cfg.write_text(cfg.read_text().replace(str(ROOT / "firmware_params/crazyflie.toml"), str(params)))
-            code, out, err = cli("params", str(cfg), "--apply")
-        assert code == 1 and "Traceback" not in err and err.count(why) == 2, err  # both modules, nothing written
-        assert err.count("\n") == 2 and "supervisor.tmblChckEn" in err, err
+    stock = (ROOT / "firmware_params/crazyflie.toml").read_text()
+    for value, why in (("256", "256 is outside what a uint8_t parameter holds (0 to 255): fix the file (the module "
+                               "holds 0)"),
+                       ("0.5", "0.5 is not a whole number, as a uint8_t parameter must be: fix the file (the module "
+                               "holds 0)")):
+        params.write_text(stock.replace('"supervisor.tmblChckEn" = 0', f'"supervisor.tmblChckEn" = {value}'))
+        for apply in ((), ("--apply",)):
+            with _relayed(tmp_path) as cfg:
+                cfg.write_text(cfg.read_text().replace(str(ROOT / "firmware_params/crazyflie.toml"), str(params)))
+                code, out, err = cli("params", str(cfg), *apply)
+            assert code == 1 and "Traceback" not in err and err.count(why) == 2, (apply, err)  # both modules
+            assert err.count("\n") == 2 and "supervisor.tmblChckEn" in err, err
 
 
 @link_or_load("parameters of modules that do not answer",
