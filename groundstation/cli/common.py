@@ -75,7 +75,24 @@ def writable_output(path: str | Path, suffixes: tuple[str, ...] | None = None) -
         raise UsageError(f"{p}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
         raise UsageError(f"{p}: not writable")
+    # Whatever its name: a log renamed a.png was written over by `replay a.png --plot a.png` (a .mcap output
+    # refuses any file that exists, itself).
+    if p.suffix != ".mcap" and _is_flight_log(p):
+        raise UsageError(f"{p}: is a flight log (MCAP); no output is ever written over one")
     return p
+
+
+def _is_flight_log(path: Path) -> bool:
+    """``path`` is a regular file that begins as an MCAP file does."""
+    from groundstation.flightlog.salvage import MAGIC
+
+    try:
+        if not path.is_file():
+            return False
+        with open(path, "rb") as fh:
+            return fh.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
 
 
 def json_safe(x):

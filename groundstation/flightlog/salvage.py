@@ -85,6 +85,8 @@ RESYNC_BYTES = 1 << 20
 JSON_METADATA = frozenset({"config", "assembly", "recovered"})
 """Metadata records whose value is a JSON object (a flight's: ``runtime/fly.py``; ``log recover``'s:
 :data:`groundstation.flightlog.mcap_log.RECOVERED`)."""
+ORDER_SLACK_NS = 500_000_000
+"""A chunk starting this much before the latest message of those read before it is out of order, ns."""
 WARNING_LINES = 10
 """Damaged stretches described one by one in :meth:`LogScan.warnings`; the summary line counts them all."""
 
@@ -97,6 +99,10 @@ DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.M
 """The records of a data section; any other opcode there is damage."""
 _SUMMARY_OPCODES = frozenset({Opcode.SCHEMA, Opcode.CHANNEL, Opcode.STATISTICS, Opcode.CHUNK_INDEX})
 """The summary records the scan uses: the channel table, the message count and where each chunk is."""
+_SUMMARY_SECTION = _SUMMARY_OPCODES | {Opcode.METADATA_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.SUMMARY_OFFSET}
+"""Every record a summary section may hold."""
+_DATA_END_BYTES = _RECORD.size + 4
+"""The Data End record: its opcode, length and data section CRC."""
 
 REASONS = {
     "crc": "CRC mismatch",
@@ -112,6 +118,9 @@ REASONS = {
                 "(metadata, an index) is damaged",
     "metadata": "a metadata record is damaged",
     "record": "a record outside the chunks (the header, a message index) is damaged",
+    "miscount": "the summary disagrees with the data section",
+    "order": "an intact chunk earlier in flight time than the one before it (chunks moved): read",
+    "appended": "a second log appended after this one's end: not read (split the file there to read it)",
 }
 """Why something was skipped, by the key :meth:`LogScan.dropped` counts it under."""
 
@@ -149,8 +158,10 @@ class Damage:
         if self.reason == "no channel":
             return f"{self.messages} messages on {', '.join(sorted(self.lost))} skipped: {REASONS[self.reason]}"
         where = f"bytes {self.span[0]}-{self.span[1]}"
-        if self.reason in ("summary", "data crc", "moved"):
+        if self.reason in ("summary", "data crc", "moved", "order", "appended"):
             return f"{where}: {REASONS[self.reason]}"
+        if self.reason == "miscount":
+            return f"{REASONS[self.reason]}: {self.note}"
         if self.reason in ("metadata", "record"):
             return f"{where}: {self.note}: skipped"
         lost = "messages unknown" if self.lost is None else _count(self.messages, "message") + (
@@ -195,6 +206,10 @@ class LogScan:
         """An intact summary's chunk index (see :class:`_Summary`); empty without one."""
         self._seen_chunks: set = set()
         """Every chunk read so far: its index key and CRC."""
+        self._chunk_starts: set[int] = set()
+        """Where each chunk read begins (file offset)."""
+        self._last_time = 0
+        """The latest message time of the chunks read so far, ns."""
 
     def records(self) -> Iterator[McapRecord]:
         """Schema, Channel, Metadata, Attachment and Message records in file order (an intact summary's schemas
@@ -281,6 +296,8 @@ class LogScan:
                                           f"the {found[0].name} metadata record is damaged ({why})"))
                 pos += len(raw)
                 continue
+            if opcode == Opcode.CHUNK:
+                self._note_chunk(pos, raw, found)
             if opcode == Opcode.DATA_END:
                 self._check_data_crc(found[0], crc, pos)
                 ended = True
@@ -291,10 +308,45 @@ class LogScan:
             yield from self._handed_out(r for r in found if not isinstance(r, Header | MessageIndex | DataEnd))
         self.position = pos
         if summary is None and ended:
-            self.damage.append(Damage("summary", (pos, self._size), 0, {}))
+            appended = _appended_log(fh, pos, self._size)
+            if appended is None:
+                self.damage.append(Damage("summary", (pos, self._size), 0, {}))
+            else:
+                self.damage += [Damage("summary", (pos, appended), 0, {}),
+                                Damage("appended", (appended, self._size), 0, None)]
         if self._orphans:
             self.damage.append(Damage("no channel", None, 0, dict(self._orphans)))
+        if summary is not None and not self.damage:
+            self._check_summary(summary, ended)
         self.complete = summary is not None and not self.damage
+
+    def _check_summary(self, summary: _Summary, ended: bool) -> None:
+        """An intact summary (its CRC may be recomputed by whoever edited it) against the data section read
+        without damage: its message count and its chunks; a summary that lies is damage, never "complete" (a count
+        of 20000 for 14753 messages, a chunk index listing chunks that are not there, replayed complete)."""
+        said = []
+        if not ended:
+            said.append("its data section ends without a Data End record")
+        if summary.messages is not None and summary.messages != self.messages:
+            said.append(f"it counts {summary.messages} messages, {self.messages} were read")
+        unread = len(set(summary.chunks) - self._chunk_starts)
+        if unread:
+            said.append(f"{_count(unread, 'chunk')} it lists were not found")
+        if said:
+            self.damage.append(Damage("miscount", (0, self._size), 0, None, "; ".join(said)))
+
+    def _note_chunk(self, pos: int, raw: bytes, found: list[McapRecord]) -> None:
+        """Where a chunk read begins (for :meth:`_check_summary`); and, read in file order, whether its first
+        message comes well before the previous chunks' last (our writer closes chunks in flight time; its threads'
+        stamps interleave by milliseconds): named, read. The timeline ran backwards and forwards unremarked, and
+        with a footer added the log replayed complete."""
+        self._chunk_starts.add(pos)
+        times = [r.log_time for r in found if isinstance(r, Message)]
+        if not times:
+            return
+        if min(times) < self._last_time - ORDER_SLACK_NS:
+            self.damage.append(Damage("order", (pos, pos + len(raw)), 0, {}))
+        self._last_time = max(self._last_time, max(times))
 
     def _handed_out(self, records) -> Iterator[McapRecord]:
         """``records`` but messages whose channel is unknown (counted instead)."""
@@ -612,16 +664,24 @@ def _summary(fh: BinaryIO, size: int) -> _Summary | None:
     fh.seek(footer_at)
     tail = fh.read(_FOOTER.size + len(MAGIC))
     opcode, length, start, _, crc = _FOOTER.unpack_from(tail)
+    # Our writer always writes a summary, right after the Data End record, and its CRC: a footer saying none
+    # (start 0, or CRC 0), or pointing elsewhere (at a chunk: the 180 after it went unread), is not trusted.
     if (tail[_FOOTER.size:] != MAGIC or opcode != Opcode.FOOTER or length != _FOOTER.size - _RECORD.size
-            or not (start == 0 or len(MAGIC) < start <= footer_at)):
+            or not len(MAGIC) + _DATA_END_BYTES <= start <= footer_at or crc == 0):
         return None
-    data_end = start or footer_at
+    fh.seek(start - _DATA_END_BYTES)
+    if fh.read(_RECORD.size) != _RECORD.pack(Opcode.DATA_END, _DATA_END_BYTES - _RECORD.size):
+        return None
+    data_end = start
     fh.seek(data_end)
     body = fh.read(footer_at - data_end)
-    if crc and zlib.crc32(tail[:_FOOTER.size - 4], zlib.crc32(body)) != crc:
+    if zlib.crc32(tail[:_FOOTER.size - 4], zlib.crc32(body)) != crc:
         return None
     try:
-        found = [_parse(op, rec) for op, rec in _split(body) if op in _SUMMARY_OPCODES]
+        records = list(_split(body))
+        if any(op not in _SUMMARY_SECTION for op, _ in records):
+            return None  # a data record, or another log, where the summary should be
+        found = [_parse(op, rec) for op, rec in records if op in _SUMMARY_OPCODES]
     except _Bad:
         return None
     messages = [r.message_count for r in found if isinstance(r, Statistics)]
@@ -629,6 +689,15 @@ def _summary(fh: BinaryIO, size: int) -> _Summary | None:
               for r in found if isinstance(r, ChunkIndex)}
     return _Summary([r for r in found if not isinstance(r, Statistics | ChunkIndex)],
                     messages[0] if messages else None, data_end, chunks)
+
+
+def _appended_log(fh: BinaryIO, start: int, end: int) -> int | None:
+    """Where a second log begins after this one's end (``start``: past its Data End), if one does: its magic
+    followed by a Header record (``cat a.mcap b.mcap``: the second flight was dropped, "0 messages lost")."""
+    fh.seek(start)
+    rest = fh.read(min(end - start, RESYNC_BYTES))
+    at = rest.find(MAGIC + bytes([Opcode.HEADER]))
+    return None if at < 0 else start + at
 
 
 def _split(body: bytes) -> Iterator[tuple[int, bytes]]:

@@ -21,6 +21,8 @@ from tests.faults.table import Fault, process_fault, rows
 from tests.flightlog.damage import Expected, chunks_of, expected, flight_log, flipped, middle_of, spread, total_messages
 from tests.replay.test_reader import config_bit_flipped, leading_records, totals
 
+ROOT = Path(__file__).resolve().parents[2]
+
 
 def _warned(err: str, log: str) -> list[str]:
     """The warning lines of ``err`` about ``log`` (as the command names it); anything else on stderr (a traceback)
@@ -307,6 +309,52 @@ def f_enumerate_out_full_disk(cli, tmp_path):
     code, _, err = cli("enumerate", "4", "--out", str(full(tmp_path / "c.json")))
     assert code == 2 and err == f"groundstation: error: {tmp_path / 'c.json'}: cannot write: No space left on " \
                                 f"device\n", err
+
+
+@process_fault("an output (replay --plot, enumerate --out, optimize --out, simulate --plot) named as a flight log "
+               "renamed (a.png, a.json), the input log among them",
+               "one line naming it, exit 2, the log as it was (before: `replay a.png --plot a.png` wrote the plot over "
+               "the log it read, exit 0)")
+def f_outputs_never_written_over_a_log(cli, tmp_path):
+    log = flight_log()
+    for name, args in (("a.png", lambda p: ("replay", str(p), "--plot", str(p))),
+                       ("b.json", lambda p: ("enumerate", "3", "--out", str(p))),
+                       ("c.json", lambda p: ("optimize", str(ROOT / "configs/tasks/toy_push_y.toml"), "--topology",
+                                             "oS", "--out", str(p))),
+                       ("d.png", lambda p: ("simulate", str(ROOT / "configs/assemblies/toy_v2.json"), "--plot",
+                                            str(p)))):
+        renamed = tmp_path / name
+        renamed.write_bytes(log.read_bytes())
+        code, out, err = cli(*args(renamed))
+        assert code == 2 and err == f"groundstation: error: {renamed}: is a flight log (MCAP); no output is ever " \
+                                    f"written over one\n", (name, err)
+        assert renamed.read_bytes() == log.read_bytes()
+
+
+@process_fault("a log whose summary lies, its CRC recomputed: a message count that is not the file's, a footer "
+               "starting the summary at a chunk mid-flight, a footer saying there is none; two logs `cat` together",
+               "every message read, not complete, named (replay's warnings; log recover: source not complete) "
+               "(before: replayed complete with no warning; recover said the source was complete and dropped the "
+               "second flight, '0 messages')")
+def f_log_summary_that_lies(cli, tmp_path):
+    from tests.flightlog.test_salvage import _footer_edited
+
+    log = flight_log()
+    data = log.read_bytes()
+    cs = chunks_of(log)
+    for name, bad, said in (
+            ("count", _footer_edited(data, statistics_count=total_messages(log) + 5247), "the summary disagrees"),
+            ("start", _footer_edited(data, summary_start=cs[len(cs) // 2].start), "summary section or footer"),
+            ("none", _footer_edited(data, summary_start=0, crc_zero=True), "summary section or footer"),
+            ("two", data * 2, "a second log appended")):
+        path = tmp_path / f"{name}.mcap"
+        path.write_bytes(bad)
+        code, out, err = cli("replay", str(path), "--json")
+        row = json.loads(out)[0]
+        assert code == 0 and row["complete"] is False and any(said in w for w in row["warnings"]), (name, row)
+        code, out, err = cli("log", "recover", str(path), str(tmp_path / f"{name}-r.mcap"))
+        assert code == 0 and json.loads(out)["source_was_complete"] is False, (name, out, err)
+        assert json.loads(out)["messages"] == total_messages(log), (name, out)
 
 
 @pytest.mark.parametrize("row", rows(__name__), ids=[f.id for f in rows(__name__)])

@@ -251,3 +251,80 @@ def test_a_chunk_of_another_file_in_its_place_is_not_this_files(tmp_path):
                    for _, _, m in make_reader(fh).iter_messages())
     assert 0 < held < 200 and s.messages == sum(read.values()) == 200 - held and s.messages_lost == held
     assert not s.complete
+
+
+def _footer_edited(data: bytes, summary_start: int | None = None, statistics_count: int | None = None,
+                   crc_zero: bool = False) -> bytes:
+    """``data`` with its footer pointing at ``summary_start`` and/or its Statistics counting ``statistics_count``
+    messages, the summary's CRC recomputed as an editor would (or zeroed): every CRC checks."""
+    import struct
+    import zlib
+
+    footer = struct.Struct("<BQQQI")
+    footer_at = len(data) - footer.size - 8
+    opcode, length, start, offsets, _ = footer.unpack_from(data, footer_at)
+    body = bytearray(data[start:footer_at])
+    if statistics_count is not None:
+        pos = 0
+        while pos < len(body):
+            op, n = struct.unpack_from("<BQ", body, pos)
+            if op == 0x0B:  # Statistics: its message count first
+                struct.pack_into("<Q", body, pos + 9, statistics_count)
+            pos += 9 + n
+    start = start if summary_start is None else summary_start
+    head = data[:footer_at] if summary_start is not None else data[:start] + bytes(body)
+    summary = head[start:]
+    record = struct.pack("<BQQQ", opcode, length, start, 0 if summary_start is not None else offsets)
+    crc = 0 if crc_zero else zlib.crc32(record, zlib.crc32(summary))
+    return head + record + struct.pack("<I", crc) + data[-8:]
+
+
+@pytest.mark.parametrize("lie", ["count", "start at a chunk", "no summary"])
+def test_a_summary_that_lies_is_never_complete(tmp_path, lie):
+    """A summary edited with its CRC recomputed: a message count that is not the file's, a footer that starts the
+    summary at a chunk in the middle (the chunks after it went unread, the end of flight called missing), or one
+    that says there is none (start 0, CRC 0). Each was read complete, and ``log recover`` called its source
+    complete next to the messages it dropped (hostile campaign 34)."""
+    log = flight_log()
+    data = log.read_bytes()
+    cs = chunks_of(log)
+    bad = tmp_path / f"{lie}.mcap"
+    if lie == "count":
+        bad.write_bytes(_footer_edited(data, statistics_count=total_messages(log) + 5247))
+    elif lie == "start at a chunk":
+        bad.write_bytes(_footer_edited(data, summary_start=cs[len(cs) // 2].start))
+    else:
+        bad.write_bytes(_footer_edited(data, summary_start=0, crc_zero=True))
+    s, read = scan(bad)
+    assert not s.complete and s.warnings(), lie
+    assert s.messages == sum(read.values()) == total_messages(log)  # every message read all the same
+    if lie == "count":
+        assert [d.note for d in s.damage] == [f"it counts {total_messages(log) + 5247} messages, "
+                                              f"{total_messages(log)} were read"]
+
+
+def test_chunks_far_out_of_flight_time_order_are_named(tmp_path):
+    """Two chunks seconds apart in flight time traded places in a log without its summary (a writer killed): read,
+    named (the timeline ran backwards unremarked)."""
+    log = flight_log()
+    cs = chunks_of(log)
+    a, b = cs[10], cs[-10]
+    data = log.read_bytes()
+    bad = tmp_path / "shuffled.mcap"
+    bad.write_bytes(data[:a.start] + data[b.start:b.end] + data[a.end:b.start] + data[a.start:a.end] + data[b.end:])
+    s, read = scan(bad)
+    assert s.messages == sum(read.values()) == total_messages(log) and not s.complete
+    assert "order" in [d.reason for d in s.damage], s.warnings()
+
+
+def test_a_second_log_appended_is_named_not_dropped_silently(tmp_path):
+    """``cat a.mcap b.mcap``: the first flight read, the second named as appended and unread (its messages
+    unknown), never "0 messages lost"."""
+    log = flight_log()
+    bad = tmp_path / "two.mcap"
+    bad.write_bytes(log.read_bytes() * 2)
+    s, read = scan(bad)
+    assert s.messages == sum(read.values()) == total_messages(log) and not s.complete
+    appended = [d for d in s.damage if d.reason == "appended"]
+    assert len(appended) == 1 and appended[0].span == (log.stat().st_size, 2 * log.stat().st_size)
+    assert s.messages_lost is None and "second log appended" in " ".join(s.warnings())
