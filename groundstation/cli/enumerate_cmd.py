@@ -74,13 +74,20 @@ def enumerate_command(n: int, symmetry: str, sample: int | None, sigma: float, s
                     click.echo(json.dumps(row))
                 else:
                     table.add_row(*(str(v) for v in row.values()))
-        except KeyboardInterrupt:  # Ctrl-C: the finished levels (printed as they came with --json), then exit 130
+        except (KeyboardInterrupt, MemoryError) as exc:
+            # Ctrl-C (exit 130), or a level too large for this machine's memory (exit 1: a MemoryError traceback
+            # at level 13 under a 3 GB limit): the finished levels (printed as they came with --json).
             if not as_json:
                 Console().print(table)
             done = f"; levels 1 to {len(levels)} are complete" if levels else ""
             unwritten = f"; {out_path} not written" if out_path is not None else ""  # it was asked for: say so
-            click.echo(f"groundstation: enumeration stopped in level {len(levels) + 1}{done}{unwritten}", err=True)
-            raise
+            why = "" if isinstance(exc, KeyboardInterrupt) else \
+                " (out of memory: sample the levels, --sample N_n, as the paper's Algorithm 1 does)"
+            click.echo(f"groundstation: enumeration stopped in level {len(levels) + 1}{why}{done}{unwritten}",
+                       err=True)
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            raise SystemExit(1) from None
         if out_path is not None:
             total = sum(lv.kept for lv in levels) if out_path.suffix == ".json" else None
             wtask = progress.add_task(f"writing {out_path.name}", total=total)

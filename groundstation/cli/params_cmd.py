@@ -35,7 +35,7 @@ def params_command(flight: str, apply: bool, param_file: str | None, as_json: bo
     from groundstation.runtime.flight_config import load_flight_config, log_directory
 
     cfg, base = load_flight_config(flight)
-    wanted = required_params(cfg.backend, base, Path(param_file).resolve() if param_file else None)
+    wanted = required_params(cfg.backend, base, Path(param_file).resolve() if param_file else None, flight)
     n = len(cfg.backend.modules)
     # The modules' link locks, as a flight takes them: parameters are never read or written while a flight (or
     # another `params`) on this host holds the modules (written into airborne modules before: hostile campaign 33).

@@ -462,13 +462,17 @@ class FlightPlan:
         trajectory through the time warp (speed scaled by at most 1, acceleration gains the warp's
         ``v * s''`` term), take-off and landing ramps, and the hold points."""
         start, end = self._ends
+        touchdown = (end[0], end[1], self.ground[2] - LANDING_DEPTH)
+        return (Ramp(self.ground, start, self.takeoff_s).bounds().union(self.tracked_bounds())
+                .union(Ramp(end, touchdown, self.landing_time).bounds()))
+
+    def tracked_bounds(self) -> Bounds:
+        """The tracking phase's bounds: the trajectory's through the time warp, whose ``v * s''`` term adds to its
+        acceleration (a short track enters and leaves its speed in a short ramp)."""
         r = min(self.ramp_s, self.track.duration / 2)
         tb = self.track.bounds()
         warp_accel = tb.accel + (tb.speed * QUINTIC_SPEED / r if r > 0 else 0.0)
-        tracked = Bounds(tb.lower, tb.upper, tb.speed, warp_accel)
-        touchdown = (end[0], end[1], self.ground[2] - LANDING_DEPTH)
-        return (Ramp(self.ground, start, self.takeoff_s).bounds().union(tracked)
-                .union(Ramp(end, touchdown, self.landing_time).bounds()))
+        return Bounds(tb.lower, tb.upper, tb.speed, warp_accel)
 
     def phase_at(self, t: float) -> Phase:
         for name, a, b in self.phases:

@@ -15,15 +15,19 @@ PARALLEL = 16
 """Modules checked at once (each check holds a connection and its threads)."""
 
 
-def required_params(backend: BackendSection, base: Path, param_file: str | Path | None = None) -> dict[str, float]:
+def required_params(backend: BackendSection, base: Path, param_file: str | Path | None = None,
+                    config: str | Path | None = None) -> dict[str, float]:
     """What every module must have: ``param_file`` (or the config's ``backend.firmware_params``, relative to
-    ``base``), plus what the config itself implies (PX4 modules: the PWM range it assumes)."""
+    ``base``), plus what the config itself implies (PX4 modules: the PWM range it assumes). ``config``: the flight
+    config's file, named in its errors."""
     kind = backend_kind(backend.kind)
+    source = None if config is None else str(config)
     if kind.check_params is None:
-        raise ConfigError(f"the {kind.name} backend has no module firmware", key="backend.kind")
+        raise ConfigError(f"the {kind.name} backend has no module firmware", path=source, key="backend.kind")
     path = param_file if param_file is not None else backend.firmware_params
     if path is None:
-        raise ConfigError("no parameter file: set backend.firmware_params or pass one", key="backend.firmware_params")
+        raise ConfigError("no parameter file: set backend.firmware_params or pass one", path=source,
+                          key="backend.firmware_params")
     wanted = load_param_file(base / path)
     if kind.implied_params is not None:
         wanted |= load(kind.implied_params)(backend)

@@ -24,6 +24,9 @@ from pathlib import Path
 from groundstation.errors import UsageError
 
 KEY_BYTES = 32
+MIN_DISTINCT_KEY_BYTES = 16
+"""Fewest distinct byte values a key file's key may have: 32 random bytes have about 30, fewer than 16 with a
+chance under 1e-20; 64 zeros (or any key typed by hand) are not a secret."""
 TAG_BYTES = 16
 """HMAC-SHA256 truncated to 128 bits (RFC 2104 section 5 allows truncation to half the hash)."""
 
@@ -89,4 +92,7 @@ def load_key_file(path: str | Path) -> MocapKey:
     if len(secret) != KEY_BYTES:
         raise UsageError(f"{path}: not a mocap key ({2 * KEY_BYTES} hexadecimal digits, as `groundstation "
                          f"mocap-key` writes)")
+    if len(set(secret)) < MIN_DISTINCT_KEY_BYTES:
+        raise UsageError(f"{path}: not a random key ({len(set(secret))} distinct bytes of {KEY_BYTES}: typed, not "
+                         f"drawn); make one with `groundstation mocap-key`")
     return MocapKey(secret)

@@ -50,6 +50,10 @@ def test_json_metrics_and_plot(cli, tmp_path):
     (["simulate", TOY, "--duration", "5e-324"], "--duration: Input should be greater than or equal to 0.1"),
     (["simulate", TOY, "--period", "0.3"], "asks for 89 deg of tilt, above 0.75 x gains.max_tilt_deg = 22.5 deg "
                                            "(--trajectory figure8 --duration 16 --height 1 --size 0.6 --period 0.3"),
+    # the 8 s figure-8 cut to 0.4 s: its speed entered and left in 0.2 s ramps (v s'' = 0.7 m/s x 1.875 / 0.2 s),
+    # which the tilt check left out: it flew to 56 deg of attitude error, exit 0 (hostile campaign 34)
+    (["simulate", TOY, "--duration", "0.4"], "its 7.26 m/s^2 asks for 36 deg of tilt, above 0.75 x "
+                                             "gains.max_tilt_deg = 22.5 deg (--trajectory figure8 --duration 0.4"),
 ])
 def test_bad_input(cli, args, fragment):
     code, out, err = cli(*args)

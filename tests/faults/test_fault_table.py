@@ -76,7 +76,7 @@ BAD_INPUTS = [
      "mocap.body: 'stats' is the name of the log's /mocap/stats channel"),
     ("mocap_key_prefix_wildcard", {'key_prefix = "mocap"': 'key_prefix = "mocap/**"'}, (), "mocap.key_prefix"),
     ("figure8_leaning_more_than_the_controller", {"period = 8.0": "period = 3.0"}, (),
-     "trajectory: the trajectory is beyond the assembly: its 5.95 m/s^2 asks for 31 deg of tilt, above 0.75 x "
+     "trajectory: the trajectory is beyond the assembly: its 7.66 m/s^2 asks for 38 deg of tilt, above 0.75 x "
      "gains.max_tilt_deg = 22.5 deg"),
     ("mocap_key_prefix_70000_characters", {'key_prefix = "mocap"': f'key_prefix = "{"m" * 70000}"'}, (),
      "mocap.key_prefix: must be at most 100 characters, not 70000"),

@@ -726,6 +726,25 @@ def f_ctrl_c_in_enumerate(cli, tmp_path):
     assert "enumeration stopped in level 12; levels 1 to 11 are complete" in err
 
 
+@process_fault("`enumerate 20` (no --sample) with 1.2 GB of address space (ulimit -v): a level too large for memory",
+               "the finished levels printed, one line naming the level it stopped in, out of memory, and --sample, "
+               "exit 1, no traceback (before: a MemoryError traceback)")
+def f_enumerate_out_of_memory(cli, tmp_path):
+    import resource
+
+    def limited():
+        resource.setrlimit(resource.RLIMIT_AS, (1_200_000_000, 1_200_000_000))
+
+    proc = subprocess.run([sys.executable, "-m", "groundstation", "enumerate", "20", "--json"], capture_output=True,
+                          text=True, cwd=ROOT, preexec_fn=limited, timeout=600)
+    levels = [json.loads(line)["n"] for line in proc.stdout.splitlines()]
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert levels == list(range(1, len(levels) + 1)) and 9 <= len(levels) < 20, levels
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"groundstation: enumeration stopped in level {len(levels) + 1} (out of memory: sample the levels, --sample "
+        f"N_n, as the paper's Algorithm 1 does); levels 1 to {len(levels)} are complete"), proc.stderr
+
+
 @process_fault("SIGTERM, or in another run a hang-up, to `log recover` scanning a 4 GiB file (a flight log's header "
                "and metadata, then zeros: a long scan), once its copy exists",
                "it stops: one line 'interrupted (SIGTERM)' (or SIGHUP), exit 143 (129); no partial copy is left, so a "

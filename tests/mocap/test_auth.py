@@ -28,6 +28,8 @@ def test_key_file_round_trip_and_mode(tmp_path):
     ("00" * 31, 0o600, "not a mocap key"),
     ("zz" * 32, 0o600, "not a mocap key"),
     (None, 0o600, "cannot read the mocap key"),
+    ("00" * 32, 0o600, "not a random key .1 distinct bytes of 32"),  # typed, not drawn
+    ("0123456789abcdef" * 4, 0o600, "not a random key .8 distinct bytes of 32"),
 ])
 def test_bad_key_files_are_one_line_errors_naming_the_file(tmp_path, content, mode, match):
     path = tmp_path / "k.key"
