@@ -559,6 +559,10 @@ def bound_issues(cfg: FlightConfig, inertia, model=None) -> Iterator[tuple[str, 
         yield ("mocap.latency_s", f"{m.latency_s:g} s plus a sample interval ({1.0 / m.rate_hz:g} s at mocap.rate_hz) "
                                   f"is not below failsafe.mocap_timeout_s = {f.mocap_timeout_s:g} s: every pose "
                                   f"would be stale")
+    planned = t.takeoff_s + 2 * t.settle_s + t.duration + t.landing_s
+    if planned > MAX_DURATION_S:  # each phase within the hour is not enough: five of them made a 5 h plan
+        yield ("trajectory", f"the flight plan lasts {planned:g} s (take-off, settle, tracking, hold and landing), "
+                             f"more than {MAX_DURATION_S:g} s: no battery of these modules lasts an hour")
     lean = cfg.gains.max_tilt_deg
     if abs(t.roll_deg) >= f.max_tilt_deg:
         yield ("trajectory.roll_deg", f"{t.roll_deg:g} deg is not below failsafe.max_tilt_deg = {f.max_tilt_deg:g} "

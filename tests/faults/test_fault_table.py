@@ -78,6 +78,8 @@ BAD_INPUTS = [
     ("figure8_leaning_more_than_the_controller", {"period = 8.0": "period = 3.0"}, (),
      "trajectory: the trajectory is beyond the assembly: its 7.66 m/s^2 asks for 38 deg of tilt, above 0.75 x "
      "gains.max_tilt_deg = 22.5 deg"),
+    ("plan_longer_than_an_hour", {"duration = 16.0": "duration = 3600.0"}, (),
+     "trajectory: the flight plan lasts 3609 s (take-off, settle, tracking, hold and landing), more than 3600 s"),
     ("mocap_key_prefix_70000_characters", {'key_prefix = "mocap"': f'key_prefix = "{"m" * 70000}"'}, (),
      "mocap.key_prefix: must be at most 100 characters, not 70000"),
     ("negative_mocap_timeout", {"mocap_timeout_s = 0.25": "mocap_timeout_s = -1"}, (), "mocap_timeout_s"),
