@@ -2,7 +2,7 @@
 
     python -m sim.udp_relay --listen 19950 --target 19850 --links 2 --delay-ms 30 [--loss 0.02]
                             [--duplicate 0.2] [--reorder 0.2 --reorder-ms 10] [--after 6] [--seed 1]
-                            [--answer-timesync] [--swap-after 8 [--swap-way answers]]
+                            [--answer-timesync] [--swap-after 8 [--swap-way answers] [--swap-every 0.06]]
 
 Link i relays ``127.0.0.1:<listen + i>`` (what the ground station talks to) to ``127.0.0.1:<target + i>`` (a
 simulated module from ``groundstation sim-peer``) and the replies back. Every packet, in either direction, is
@@ -14,8 +14,9 @@ clock as the module's newest ``ATTITUDE`` showed it, and keeps them from the mod
 holds back. With ``--swap-after`` the links trade places that long after the first packet: link i then reaches
 module i + 1 (the last, module 0), both ways, or with ``--swap-way`` only the commands' way (link i's packets go to
 module i + 1, whose answers still come on link i + 1) or only the answers' (module i's answers come on link i - 1,
-the commands still reach their module). Runs until SIGTERM/SIGINT and then prints how many packets it
-relayed, dropped, duplicated, reordered and answered as one JSON line.
+the commands still reach their module); with ``--swap-every`` they swap back and again that often. Runs until
+SIGTERM/SIGINT and then prints how many packets it relayed, dropped, duplicated, reordered and answered as one JSON
+line.
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ class Faults:
     """The links trade places this long after the first packet, s (see the module docstring)."""
     swap_way: str = "both"
     """Which way the swap takes: "both", "commands" or "answers"."""
+    swap_every_s: float = 0.0
+    """With a swap: back, and again, every this long (0: swapped for good), s."""
 
 
 @dataclass
@@ -142,7 +145,10 @@ class UdpRelay:
 
     def _swapped(self, now: float) -> tuple[int, int]:
         """(commands' way, answers' way): 1 where link i reaches module i + 1 that way, else 0."""
-        on = int(self._started is not None and now - self._started >= self.faults.swap_after_s)
+        since = now - self._started - self.faults.swap_after_s if self._started is not None else -1.0
+        on = int(since >= 0.0)
+        if on and self.faults.swap_every_s > 0.0:  # swapped, back, swapped...
+            on = 1 - int(since / self.faults.swap_every_s) % 2
         way = self.faults.swap_way
         return on * (way in ("both", "commands")), on * (way in ("both", "answers"))
 
@@ -206,10 +212,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="the links trade places this long after the first packet, s (link i reaches module i+1)")
     ap.add_argument("--swap-way", choices=("both", "commands", "answers"), default="both",
                     help="which way --swap-after swaps: both, only the commands' or only the answers'")
+    ap.add_argument("--swap-every", type=float, default=0.0,
+                    help="after --swap-after, swap back and again every this long, s (0: swapped for good)")
     a = ap.parse_args(argv)
     relay = UdpRelay(a.listen, a.target, a.links,
                      Faults(a.delay_ms * 1e-3, a.loss, a.duplicate, a.reorder, a.reorder_ms * 1e-3, a.after,
-                            a.answer_timesync, a.swap_after, a.swap_way), a.seed)
+                            a.answer_timesync, a.swap_after, a.swap_way, a.swap_every), a.seed)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, relay.stop)
     c = relay.run()

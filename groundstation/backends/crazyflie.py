@@ -101,10 +101,12 @@ one comes, s: three periods at 250 Hz, so a slow radio's queue of claims never h
 STARVED_STATES = 5
 """A module whose states report this many batches in a row of only dropped commands gets none of ours with its
 token: after a re-route, the commands' way was swapped too (its partner's link carries them)."""
-MAX_TRADES = 8
-"""Trades of two starving modules' commands' ways a flight: a relay swapping back and forth is followed (a second
-swap, traded once a flight, stopped the motors 0.7-0.97 m up: hostile campaign 33); two modules that starve on
-after that many are faulty."""
+MAX_FUTILE_TRADES = 3
+"""Trades of two starving modules' commands' ways in a row that bring neither module's commands back: then the
+modules are faulty. Every trade that does bring them back starts the count again, so a relay swapping back and
+forth is followed however often it swaps (traded once a flight, a second swap stopped the motors 0.7-0.97 m up:
+hostile campaign 33; eight a flight, a swap every 60 ms used them up in 0.5 s and stopped them 0.4-0.7 m up:
+campaign 34)."""
 IDENTITY_PERIOD_S = 0.05
 """In flight each module is claimed again this often (the same session keeps its token; the answer names the
 module): a link that reaches another module than its own is found within a period of this and a round trip, s.
@@ -283,6 +285,9 @@ class _Module:
         """Round trips of the newest states that echoed a new sequence, s."""
         self.fault = ""
         """Why the module stopped flying since arming ("" while it flies); latched."""
+        self.fault_said = ""
+        """What its newest state said of its firmware ("" if nothing): latched as :attr:`fault` when the next says
+        it stopped flying too."""
         self.identity: wire.Identity | None = None
         """The newest answer to a claim."""
         self.uid = ""
@@ -293,6 +298,8 @@ class _Module:
         """When the newest claim answer came on this module's way in, s."""
         self.starved = 0
         """States in a row that report only dropped commands (none of ours accepted)."""
+        self.traded = False
+        """Its commands' way was traded, and it has accepted none of ours since."""
         self.claimed = -np.inf
         """When this module was last claimed in flight, s."""
         self.claims_silent = False
@@ -367,8 +374,9 @@ class CrazyflieBackend(BackendBase):
         self.rerouted = ""
         """How the links stopped being what preflight checked, in flight ("" if never): re-routed, a module's claims
         unanswered."""
-        self._trades = 0
-        """How often two modules' commands' ways were traded in flight (at most :data:`MAX_TRADES`)."""
+        self._futile_trades = 0
+        """Trades of two modules' commands' ways in a row that brought neither's commands back (at most
+        :data:`MAX_FUTILE_TRADES`)."""
         self._locks = LinkLocks(self.uris)
 
     # -- Backend protocol ---------------------------------------------------------------------------------------
@@ -588,7 +596,7 @@ class CrazyflieBackend(BackendBase):
         self._armed = True
         self._disarm_requested = False
         for m in self._modules:
-            m.fault = ""
+            m.fault = m.fault_said = ""
             m.answered = self._clock()  # the claim clock starts at arming (preflight's answers checked the links)
             m.claims_silent = False
 
@@ -850,12 +858,12 @@ class CrazyflieBackend(BackendBase):
     def _starved(self, i: int, m: _Module) -> None:
         """Module i drops every command of ours (:data:`STARVED_STATES` states): its commands reach another module.
         After a re-route, they go down its partner's link; else, when exactly one other module starves too (a relay
-        swapped only the commands' ways, or swapped them back), down that one's (:data:`MAX_TRADES` a flight).
+        swapped only the commands' ways, or swapped them back), down that one's (:data:`MAX_FUTILE_TRADES`).
         Otherwise the module is faulty."""
         # Starving too: more than one batch (a duplicated or overtaken one drops alone on a healthy module).
         others = [k for k, o in enumerate(self._modules) if k != i and o.starved > STARVED_STATES // 2]
         j = m.partner if m.partner is not None else others[0] if len(others) == 1 else None
-        j = j if self._trades < MAX_TRADES else None
+        j = j if self._futile_trades < MAX_FUTILE_TRADES else None
         if j is None and not others and m.starved < 2 * STARVED_STATES:
             return  # the other may not have reported its first drop yet
         if j is None:
@@ -866,7 +874,8 @@ class CrazyflieBackend(BackendBase):
         a.sender, b.sender = b.sender, a.sender
         a.partner = b.partner = None
         a.starved = b.starved = 0
-        self._trades += 1
+        a.traded = b.traded = True
+        self._futile_trades += 1
         self._note(f"modules {min(i, j)} and {max(i, j)} dropped every command: their commands' ways traded places "
                    f"too")
 
@@ -906,10 +915,17 @@ class CrazyflieBackend(BackendBase):
             m.starved = 0 if accepted > 0 else m.starved + (_signed16(st.dropped - previous.dropped) > 0)
             if accepted > 0:
                 m.partner = None  # its commands reach it: a re-route's ways in alone were swapped
+                if m.traded:  # a trade that brought its commands back: not futile
+                    m.traded, self._futile_trades = False, 0
             if m.starved >= STARVED_STATES:
                 self._starved(i, m)
         if self._armed and not m.fault:
-            m.fault = self._module_fault(st, restarted)
+            # Latched when two states in a row say the firmware stopped flying it (named by the first: a reboot's
+            # next state says "disarmed"): one state with the lock bit flipped (a relay's, or a bit error the
+            # radio's CRC missed) stopped the V's motors 0.75 m up; a module that did stop says so again in its next
+            # state, 4 ms later.
+            said = self._module_fault(st, restarted)
+            m.fault, m.fault_said = (m.fault_said if said and m.fault_said else ""), said
         # Only echoes of this backend's own commands measure the link (a module still echoes the previous
         # session's last command until it accepts one of ours).
         ours = self._sent >= 1 << 16 or (st.sequence - 1) & 0xFFFF < self._sent

@@ -212,6 +212,27 @@ def _applied(peer) -> list[np.ndarray]:
     return [wire.from_counts(peer.firmware(i).app.latest.counts) for i in range(2)]
 
 
+def test_commands_ways_swapped_back_and_forth_every_60_ms_are_followed():
+    """A relay swapping the commands' ways back and again every 60 ms for 1.5 s: every swap is a trade that brings
+    the commands back, so the trades go on as long as the swaps do (eight a flight ran out in 0.5 s and stopped the
+    motors 0.4-0.7 m up: hostile campaign 34); each module flies its own commands again after, no module fault."""
+    with _relayed_peer(19980, 19984, 7495, swap_after_s=2.0, swap_way="commands", swap_every_s=0.06) as peer, \
+            backend(19984) as be:
+        assert be.preflight().ok
+        be.arm()
+        u = np.array([0.2] * 4 + [0.4] * 4) * U_MAX
+        hold(be, u, 3.0)  # the swaps start 2 s after the relay's first packet (~1 s ago): 1.5 s and more of them
+        assert be.telemetry().module_faults == ("", ""), be.telemetry().module_faults
+        assert "commands' ways traded places" in be.telemetry().rerouted
+        own = 0
+        for _ in range(20):  # each module applies its own command (0.2 or 0.4 of u_max) most of the time
+            hold(be, u, 0.02)
+            now = _applied(peer)
+            own += now[0].mean() < now[1].mean()
+        assert own >= 12 and be.telemetry().link_ok, own
+        be.disarm()
+
+
 @pytest.mark.parametrize("way, port, counts_apart", [("both", 19760, 0), ("answers", 19766, 0),
                                                      ("commands", 19778, 0), ("both", 19790, 20000)])
 def test_links_swapped_in_flight_are_found_by_the_modules_ids_and_re_routed(way, port, counts_apart):
@@ -274,3 +295,34 @@ def test_a_module_whose_claims_go_unanswered_in_flight_is_named():
                                ) and said.endswith("ms: its link can no longer be checked"), said
         assert be.telemetry().link_ok  # its states still come: a landing, not a stop
         be.disarm()
+
+
+def test_one_state_saying_locked_is_not_a_module_fault():
+    """One state with the lock bit flipped (a relay's, or a bit error) is not latched: the next state says the
+    module flies (before: the V's motors stopped 0.75 m up, hostile campaign 34). A module that did lock says so
+    in its next state too: named."""
+    peer, th = start_peer(19970, 7494)
+    try:
+        with backend(19970) as be:
+            assert be.preflight().ok
+            be.arm()
+            u = np.full(8, 0.3 * U_MAX)
+            hold(be, u, 0.2)
+            firmware = peer.firmware(0)
+            flags, flipped = firmware._flags, []
+
+            def once_locked(now):
+                if not flipped:
+                    flipped.append(now)
+                    return flags(now) | wire.STATE_LOCKED
+                return flags(now)
+
+            firmware._flags = once_locked
+            hold(be, u, 0.2)
+            assert flipped and be.telemetry().module_faults == ("", "")
+            firmware._flags = lambda now: flags(now) | wire.STATE_LOCKED  # it locked
+            hold(be, u, 0.1)
+            assert be.telemetry().module_faults[0].startswith("locked by its supervisor")
+            be.disarm()
+    finally:
+        stop_peer(peer, th)
