@@ -133,6 +133,8 @@ class _Module:
         self.battery_heard = -np.inf
         """When SYS_STATUS last came (it is slower than the rest: 10 Hz on PX4)."""
         self.armed = False
+        self.disarm_heard = False
+        """In flight a heartbeat said the module disarmed: its next outputs confirm it (or not)."""
         self.terminated = False
         self.armed_at = -np.inf
         """When the module acknowledged arming."""
@@ -448,6 +450,10 @@ class MavlinkBackend(BackendBase):
         for i, m in enumerate(self._modules):
             if m.system_id is None:
                 continue  # not heard yet: nothing to address (and nothing armed)
+            if m.armed and not m.arm_wanted and not self._stop_sent:
+                # Armed, not by us: another ground station flies it (through a relay, past this host's link
+                # locks). Our preflight's zeros would reach it: they disturbed the airborne first flight, 1 in 4.
+                continue
             for conn in self._conns(m):
                 conn.mav.set_actuator_control_target_send(t_us, mw.ACTUATOR_GROUP, m.system_id, m.component_id,
                                                           mw.to_controls(u[4 * i:4 * i + 4], self.u_max))
@@ -528,9 +534,15 @@ class MavlinkBackend(BackendBase):
                     m.system_id, m.component_id = msg.get_srcSystem(), msg.get_srcComponent()
                     armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
                     # PX4 acknowledges on its receive thread and sends heartbeats from another: a heartbeat built
-                    # just before arming may arrive after the ACK. Only a later one says the module disarmed.
-                    if armed or now - m.armed_at > ARM_GRACE_S:
-                        m.armed = armed
+                    # just before arming may arrive after the ACK. Only a later one says the module disarmed; in
+                    # flight, once its own outputs say so too (below): one forged heartbeat, unsigned as MAVLink 2
+                    # is here, or another vehicle's of the same system id on a shared radio, stopped the motors
+                    # 0.77 m up (hostile campaign 34).
+                    if armed:
+                        m.armed, m.disarm_heard = True, False
+                    elif now - m.armed_at > ARM_GRACE_S:
+                        m.disarm_heard = m.armed and self._armed
+                        m.armed = m.armed and self._armed
                     m.terminated = msg.system_status == mav.MAV_STATE_FLIGHT_TERMINATION
                 elif m.system_id is None:
                     continue  # until the autopilot's heartbeat says who the module is
@@ -546,10 +558,12 @@ class MavlinkBackend(BackendBase):
                     m.up = mw.up_in_module(msg.roll, msg.pitch)
                     _clock_sample(m.attitude_clock, now, msg.time_boot_ms * 1e-3 - now)  # uint32 ms: wraps
                 elif kind == "SERVO_OUTPUT_RAW":
+                    pwm = (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw)
+                    if m.disarm_heard:  # a disarmed module outputs PWM_MAIN_DISARM, below the armed range
+                        m.armed, m.disarm_heard = not all(p < s.pwm_min for p in pwm), False
                     # Outputs sent before the module saw the stop still show thrust; the disarm's ACK comes
                     # after them on the same link, so only later outputs say what is applied now.
                     if not self._stop_sent or m.stop_acked:
-                        pwm = (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw)
                         self._applied[4 * i:4 * i + 4] = mw.from_pwm(pwm, self.u_max, s.pwm_min, s.pwm_max)
                 elif kind == "SYS_STATUS":
                     self._battery[i] = msg.voltage_battery * 1e-3

@@ -176,9 +176,13 @@ def test_passthrough_mixer_file_matches_the_wire_convention():
         assert pwm == pytest.approx(mw.to_pwm(u, U_MAX, 1000, 2000)[q], abs=0.5)
 
 
-def test_a_stale_disarmed_heartbeat_right_after_arming_is_not_a_disarm():
+@pytest.mark.parametrize("outputs, disarmed", [(900, True), (1300, False)])
+def test_a_stale_disarmed_heartbeat_right_after_arming_is_not_a_disarm(outputs, disarmed):
     """A vehicle whose heartbeat, built before it armed, arrives after its arming ACK (PX4 sends them from
-    different threads): the backend keeps flying; a disarmed heartbeat a second later ends the flight."""
+    different threads): the backend keeps flying; a disarmed heartbeat a second later ends the flight once the
+    vehicle's outputs say so too (PWM_MAIN_DISARM, 900 us); outputs still in the armed range (1300 us) say the
+    heartbeat was not the vehicle's state (one forged heartbeat stopped the motors 0.77 m up: hostile campaign
+    34)."""
     vehicle = mavutil.mavlink_connection("udpin:127.0.0.1:14650", source_system=1, source_component=1)
     stop = threading.Event()
     disarmed_beat = threading.Event()
@@ -201,6 +205,7 @@ def test_a_stale_disarmed_heartbeat_right_after_arming_is_not_a_disarm():
                     heartbeat(False)  # the stale one
             elif disarmed_beat.is_set():
                 heartbeat(False)
+                vehicle.mav.servo_output_raw_send(0, 0, *[outputs] * 4, 0, 0, 0, 0)
                 disarmed_beat.clear()
             else:
                 vehicle.mav.attitude_send(0, 0, 0, 0, 0, 0, 0)  # keeps the link fresh
@@ -215,7 +220,7 @@ def test_a_stale_disarmed_heartbeat_right_after_arming_is_not_a_disarm():
             time.sleep(ARM_GRACE_S)
             disarmed_beat.set()
             hold(be, np.zeros(4), 0.2)
-            assert not be.telemetry().link_ok  # a fresh one is
+            assert be.telemetry().link_ok != disarmed  # a fresh one is, with the outputs of a disarmed vehicle
     finally:
         stop.set()
         th.join(2)
