@@ -100,6 +100,30 @@ DISPUTE_FRESH_S = 0.1
 copied id, an outage) nothing disputes the gyros, and a landing flown on them alone must keep them."""
 GC_INTERVAL_S = 1.0
 """The loop collects Python's young garbage generations about this often, between periods, s."""
+SUSTAINED_S = 0.1
+"""A link's round trip counts as its own (the bandwidths held cut for it, the motors stopped beyond the stop bound)
+once it has lasted this long, s: the modules' own command watchdogs' time (the Crazyflie app's 100 ms, PX4's
+COM_OF_LOSS_T); a stall's burst of late answers is shorter."""
+
+
+class Sustained:
+    """The least of a value over the last ``span_s``: what it has been at least all that time (NaN until the values
+    span it)."""
+
+    def __init__(self, span_s: float) -> None:
+        self.span_s = span_s
+        self._values: deque[tuple[float, float]] = deque()
+
+    def add(self, t: float, value: float) -> float:
+        """Add ``value`` at ``t`` (s, increasing); the least over the last ``span_s``."""
+        self._values.append((t, value))
+        while len(self._values) > 1 and self._values[1][0] <= t - self.span_s:
+            self._values.popleft()
+        if self._values[0][0] > t - self.span_s:
+            return math.nan
+        return min(v for _, v in self._values)
+
+
 CUT_SAID_AGAIN = 1.1
 """A bandwidth cut for a loop delay this many times the last one said is said again (the gains flown deepen with
 the square of the delay: the log's figures are the ones flown, within about 20 %)."""
@@ -472,13 +496,18 @@ class Flight:
         self._rate_hz: float | None = None
         self._said_cut_delay_s = 0.0
         """The delay of the last cut the log was told of, s."""
+        self._sustained_delay = Sustained(SUSTAINED_S)
+        """The loop delay (the links' mean round trip and a period) over the last :data:`SUSTAINED_S`."""
+        self._sustained_round_trip = Sustained(SUSTAINED_S)
+        """The slowest module's round trip over the last :data:`SUSTAINED_S`."""
         self._cut_delay_s: float | None = None
-        """The longest loop delay (the links' mean round trip and a period) the gains have been cut for
-        (:func:`delay_limited`), s; None while no link was slow. Held for the rest of the flight: a round trip that
-        wobbles back under the bound, or goes unmeasured (NaN) while a relay's answers change, is not a faster link.
-        Recut at each period from the newest round trip, a relay answering the probes and holding the rest 10 ms
-        each way (measured 16-18 ms against its 20) swung the landing 25 deg at 4 Hz (38 deg on a loaded
-        machine); held at the worst, 19-23 deg."""
+        """The longest loop delay sustained for :data:`SUSTAINED_S` beyond the bound that the gains have been cut
+        for (:func:`delay_limited`), s; None while no link was slow. Held for the rest of the flight: a round trip
+        that wobbles back under the bound, or goes unmeasured (NaN) while a relay's answers change, is not a faster
+        link. Recut at each period from the newest round trip, a relay answering the probes and holding the rest
+        10 ms each way (measured 16-18 ms against its 20) swung the landing 25 deg at 4 Hz (38 deg on a loaded
+        machine); held at the worst, 19-23 deg. A stall's burst (an 80 ms stall read 55 ms for a few periods) is
+        not sustained: held, it would have cut the rest of the flight to a tenth."""
         self.phase = Phase.PREFLIGHT
         self.reason = ""
         self.metrics = FlightMetrics(assembly.n)
@@ -746,7 +775,7 @@ class Flight:
             named = "; ".join(f"module {i} {why}" for i, why in enumerate(telemetry.module_faults) if why)
             self._emergency(t, "backend link lost" + (f": {named}" if named else ""))
             return False
-        degraded, severe = self._link_degraded(telemetry)
+        degraded, severe = self._link_degraded(t, telemetry)
         if degraded:
             if severe or self.policy.on_link_degraded == "stop":
                 self._emergency(t, degraded)
@@ -879,22 +908,25 @@ class Flight:
         gains = self.gains if self.gyros.lost_since is None else self._gains_without_gyros
         lat = telemetry.link_latency_s
         period = self._stats.period
-        if lat.size and np.nanmax(lat, initial=0.0) > self.policy.max_link_latency_s:
-            # The modules' mean round trip: every module's rotors act on each axis, so one late module of two
-            # delays half the loop (one Crazyflie link of two slowed 20 ms each way: cut on its own round trip
-            # the V tilted 16 deg in a 3 s landing, on the mean 1 deg).
-            delay = float(np.nanmean(lat)) + period
-            if delay > self.policy.max_link_latency_s + period and math.isfinite(delay) and \
-                    (self._cut_delay_s is None or delay > self._cut_delay_s):
-                if self._cut_delay_s is None or delay > self._said_cut_delay_s * CUT_SAID_AGAIN:
-                    cut = delay_limited(gains, delay, self.policy.max_link_latency_s + period)
+        bound = self.policy.max_link_latency_s + period
+        # The modules' mean round trip: every module's rotors act on each axis, so one late module of two delays
+        # half the loop (one Crazyflie link of two slowed 20 ms each way: cut on its own round trip the V tilted
+        # 16 deg in a 3 s landing, on the mean 1 deg).
+        delay = float(np.nanmean(lat)) + period if lat.size and np.any(np.isfinite(lat)) else math.nan
+        if math.isfinite(delay):
+            held = self._sustained_delay.add(t, delay)
+            if held > bound and (self._cut_delay_s is None or held > self._cut_delay_s):
+                if self._cut_delay_s is None or held > self._said_cut_delay_s * CUT_SAID_AGAIN:
+                    cut = delay_limited(gains, held, bound)
                     self._event(t, "warning", f"attitude and position bandwidths cut to {cut.attitude_hz:.2f} and "
                                               f"{cut.position_hz:.2f} Hz for the links' mean round trip "
-                                              f"{(delay - period) * 1e3:.0f} ms")
-                    self._said_cut_delay_s = delay
-                self._cut_delay_s = delay
-        if self._cut_delay_s is not None:
-            gains = delay_limited(gains, self._cut_delay_s, self.policy.max_link_latency_s + period)
+                                              f"{(held - period) * 1e3:.0f} ms")
+                    self._said_cut_delay_s = held
+                self._cut_delay_s = held
+        # Cut for the longest of the delay held (:attr:`_cut_delay_s`) and this period's: a round trip that wobbles
+        # back under the bound or goes unmeasured keeps the cut, a stall's burst cuts only while it lasts.
+        flown = max(self._cut_delay_s or 0.0, delay if math.isfinite(delay) else 0.0)
+        gains = delay_limited(gains, flown, bound)
         out = control(state, sp, self.model, gains)
         if self.phase == Phase.LANDING and self._height < PRESS_HEIGHT_M and \
                 (self._landing is not None and self._landing[2] or age > PRESS_STALE_S):
@@ -976,18 +1008,22 @@ class Flight:
         self._begin_landing(t, state, f"{names}: landing on the other modules")  # from here, on the rest
         return True
 
-    def _link_degraded(self, telemetry) -> tuple[str, bool]:
+    def _link_degraded(self, t: float, telemetry) -> tuple[str, bool]:
         """Why the modules' links are too slow or lossy to fly on ("" if fine or not measured), and whether they
-        are too slow even to land on."""
+        are too slow even to land on: beyond ``link_stop_latency_s`` for :data:`SUSTAINED_S`, the modules' own
+        command watchdogs' time (an 80 ms stall of a PX4 link read 55 ms for a few periods, and stopped the motors
+        0.93-0.95 m up, 3 of 4: hostile campaign 34; it lands now)."""
         p = self.policy
         lat, loss = telemetry.link_latency_s, telemetry.link_loss
-        slow = lat.size and np.nanmax(lat, initial=0.0) > p.max_link_latency_s
+        slowest = float(np.nanmax(lat, initial=0.0)) if lat.size and np.any(np.isfinite(lat)) else math.nan
+        slow = slowest > p.max_link_latency_s
         i = int(np.nanargmax(lat)) if slow else 0
-        if slow and lat[i] > p.link_stop_latency_s:
+        held = self._sustained_round_trip.add(t, slowest) if math.isfinite(slowest) else math.nan
+        if held > p.link_stop_latency_s:
             # Checked before a re-route's note, which would otherwise stand for the link for the rest of the flight:
             # a link too slow to land on stops the motors whatever else it did.
             return f"link degraded: module {i} round trip {lat[i] * 1e3:.0f} ms > " \
-                   f"{p.link_stop_latency_s * 1e3:g} ms", True
+                   f"{p.link_stop_latency_s * 1e3:g} ms for {SUSTAINED_S * 1e3:.0f} ms", True
         if telemetry.rerouted:
             return f"link degraded: {telemetry.rerouted}", False
         if slow:
