@@ -515,6 +515,19 @@ def f_params_value_outside_its_type(cli, tmp_path):
             assert err.count("\n") == 2 and "supervisor.tmblChckEn" in err, err
 
 
+@link_or_load("fly with Crazyflie links to a host that does not resolve (udp://nosuchhost.invalid:...)",
+              "one line naming the link, exit 1, nothing armed (before: 10 cflib tracebacks, 121 lines, first)")
+def f_crazyflie_link_host_unresolved(cli, tmp_path):
+    cfg = sitl_config(tmp_path, "crazyflie", 22740, "tcp/127.0.0.1:8607")
+    cfg.write_text(cfg.read_text().replace("udp://127.0.0.1:22740", "udp://nosuchhost.invalid:22740"))
+    # Its own process: cflib's tracebacks went to logging's last resort, on the process's stderr.
+    proc = subprocess.run([sys.executable, "-m", "groundstation", "fly", str(cfg), "--log", str(tmp_path / "x.mcap")],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    err = proc.stderr
+    assert proc.returncode == 1 and "Traceback" not in err and err.count("\n") == 1, err
+    assert "cannot open udp://nosuchhost.invalid:22740" in err, err
+
+
 @link_or_load("parameters of modules that do not answer",
               "one line per module, exit 1")
 def f_params_silent_modules(cli, tmp_path):
