@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -92,6 +93,10 @@ from groundstation.runtime.placement import placement_issues
 from groundstation.runtime.signals import LANDING_SIGNALS, NEVER_A_STOP, TOOL_SIGNALS, signal_name
 from groundstation.runtime.terminal import forget_lost_terminal
 
+MIN_LOG_ROOM_BYTES = 200_000
+"""Preflight: room left on the log's disk at least this, bytes: about a second of the log (the main command's: 4.2 MB
+for 18 s at 250 Hz, two modules). On 24 KiB the writer's header fit and the flight armed and took off with a log
+that held nothing of it (hostile campaign 34); a disk that fills later lands the flight (``on_log_failure``)."""
 PREFLIGHT_TIMEOUT_S = 3.0
 PREFLIGHT_POLL_S = 0.005
 """Preflight reads the mocap stream this often, s (a keyed stream's challenges go out at its reads)."""
@@ -545,6 +550,14 @@ def _log_issues(log: FlightLog, requests: Requests) -> list[str]:
         return [f"the log: {log.error}"]
     if _size(log.path) == 0:
         return [f"the log: nothing of {log.path} is on disk after {WRITER_START_S:g} s (a full disk?)"]
+    try:
+        fs = os.statvfs(log.path)
+    except OSError as exc:
+        return [f"the log: cannot tell the room left for {log.path}: {exc.strerror}"]
+    room = fs.f_bavail * fs.f_frsize
+    if room < MIN_LOG_ROOM_BYTES:
+        return [f"the log: {room // 1024} KiB left on the disk of {log.path}, under {MIN_LOG_ROOM_BYTES // 1000} kB "
+                f"(about a second of flight)"]
     return []
 
 

@@ -395,10 +395,18 @@ def f_full_disk(cli, tmp_path):
     assert not r.complete and r.metrics.periods > 250
 
 
-@process_fault("the log's disk is full before the take-off (no byte of the log can be written)",
+@process_fault("the log's disk is full before the take-off (no byte of the log can be written), or has 20 KiB "
+               "left (its header fits, no second of flight does)",
                "refused in preflight, never armed (before, it took off with an empty log), one line naming the log; "
                "exit 2")
 def f_full_disk_before_takeoff(cli, tmp_path):
+    with tiny_disk(tmp_path / "nearly") as disk:  # 64 KiB, 20 KiB of it left
+        (disk / "filler").write_bytes(bytes(44 * 1024))
+        log = disk / "short.mcap"
+        code, out, err = cli("fly", str(config_with(tmp_path, endpoint="tcp/127.0.0.1:8544")), "--duration", "2",
+                             "--log", str(log))
+        assert code == 2 and "preflight failed" in err and "KiB left on the disk of" in err, err
+        assert "Traceback" not in err and err.count("\n") == 1, err
     with tiny_disk(tmp_path / "disk") as disk:
         with contextlib.suppress(OSError), (disk / "filler").open("wb") as filler:
             while True:  # until the disk is full (ENOSPC)
