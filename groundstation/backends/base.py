@@ -172,7 +172,9 @@ Crazyflie's commands): a window is a noisy sample, and its plain share landed fl
 
 
 def wilson_lower(k: int, n: int, z: float) -> float:
-    """Lower end of the Wilson score interval of ``k`` in ``n`` at ``z`` standard deviations."""
+    """Lower end of the Wilson score interval of ``k`` in ``n`` at ``z`` standard deviations (``k`` taken within
+    0..``n``)."""
+    k = min(max(k, 0), n)
     if k == 0:
         return 0.0  # exactly (rounding left 3e-18, which a log reads as loss)
     p = k / n

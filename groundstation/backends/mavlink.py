@@ -95,6 +95,10 @@ class MavlinkSettings:
     went within a millisecond or two."""
 
 
+OVERTAKEN_SEQS = 16
+"""Sequence numbers skipped that a later message may still fill (overtaken on a reordering link), at most."""
+OVERTAKEN_S = 0.2
+"""How late an overtaken message may come, s (a sequence number recurs every 256 messages, ~0.5 s)."""
 SEQUENCE_RESYNC = 4
 """A module's messages this many in a row in order, all behind its newest, are where its sequence went on after
 128 or more were lost (a duplicate or an overtaken message comes alone)."""
@@ -166,6 +170,9 @@ class _Module:
         """The module's newest messages in a row that came in order behind :attr:`last_seq`."""
         self.behind_seq = 0
         """The newest of them."""
+        self.skipped: deque[tuple[int, float]] = deque(maxlen=OVERTAKEN_SEQS)
+        """(sequence number, when) of the newest skipped (counted missing): one that comes within
+        :data:`OVERTAKEN_S` was overtaken, not lost."""
         self.seq_gaps: deque[tuple[float, int]] = deque()
         """(when, messages missing just before it) of each of the module's messages in order, oldest first: what
         its way to us loses, which a relay answering the probes itself does not hide (hostile campaign 31)."""
@@ -231,6 +238,7 @@ class MavlinkBackend(BackendBase):
             m.attitude_clock.clear()
             m.seq_gaps.clear()
             m.last_seq, m.behind = None, 0
+            m.skipped.clear()
         # PX4 switches to offboard only while setpoints stream: stream zeros (disarmed, nothing spins).
         while self._clock() < deadline and not all(m.battery_heard >= since and r and len(m.rtts) >= s.latency_samples
                                                    for m, r in zip(self._modules, requested, strict=True)):
@@ -373,7 +381,8 @@ class MavlinkBackend(BackendBase):
                 each_way = 1.0 - math.sqrt(1.0 - lost)
             # The way back, counted by the module's own numbers (a link gone quiet keeps no old window).
             gaps = [gap for t, gap in m.seq_gaps if t >= self._polled - LOSS_WINDOW_S]
-            missing, came = sum(gaps), len(gaps)
+            # An overtaken message's -1 may fall in the window without the gap it takes back: never below none.
+            missing, came = max(sum(gaps), 0), len(gaps)
             back = wilson_lower(missing, missing + came, LOSS_CONFIDENCE_Z) if came >= MIN_LOSS_PROBES else np.nan
             out.append(np.nan if np.isnan(each_way) and np.isnan(back) else np.nanmax([each_way, back]))
         return np.array(out)
@@ -599,14 +608,21 @@ class MavlinkBackend(BackendBase):
         """Count one of the module's messages into :attr:`_Module.seq_gaps` by its MAVLink sequence number."""
         gap = (seq - m.last_seq - 1) & 0xFF if m.last_seq is not None else 0
         if gap >= 128:
-            # Behind the newest: a duplicate or one overtaken (its gap was counted when it was skipped); unless
-            # such messages run on in order, from where the sequence went on after a burst of 128 or more lost
-            # (read as behind, the rest of the flight's messages counted nothing).
+            late = next((k for k in m.skipped if k[0] == seq and now - k[1] < OVERTAKEN_S), None)
+            if late is not None:  # overtaken: counted missing when skipped, it came after all
+                m.skipped.remove(late)
+                m.seq_gaps.append((now, -1))  # one more came, one fewer missing (30 % reordered read 10 % lost)
+                return
+            # Behind the newest: a duplicate; unless such messages run on in order, from where the sequence went
+            # on after a burst of 128 or more lost (read as behind, the rest of the flight's messages counted
+            # nothing).
             m.behind = m.behind + 1 if m.behind and seq == (m.behind_seq + 1) & 0xFF else 1
             m.behind_seq = seq
             if m.behind < SEQUENCE_RESYNC:
                 return
             gap = (seq - SEQUENCE_RESYNC + 1 - m.last_seq - 1) & 0xFF  # at least: a multiple of 256 may hide too
+        elif 0 < gap <= OVERTAKEN_SEQS and m.last_seq is not None:
+            m.skipped.extend(((m.last_seq + k) & 0xFF, now) for k in range(1, gap + 1))
         m.behind = 0
         m.last_seq = seq
         m.seq_gaps.append((now, gap))
