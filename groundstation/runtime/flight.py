@@ -106,6 +106,11 @@ once it has lasted this long, s: the modules' own command watchdogs' time (the C
 COM_OF_LOSS_T); a stall's burst of late answers is shorter."""
 
 
+MOMENT_HELD = 2.0
+"""A loop delay beyond the bound for a moment (shorter than :data:`SUSTAINED_S`) holds the bandwidths cut for at
+most this many times the bound (a quarter of each bandwidth)."""
+
+
 class Sustained:
     """The least of a value over the last ``span_s``: what it has been at least all that time (NaN until the values
     span it)."""
@@ -507,7 +512,7 @@ class Flight:
         link. Recut at each period from the newest round trip, a relay answering the probes and holding the rest
         10 ms each way (measured 16-18 ms against its 20) swung the landing 25 deg at 4 Hz (38 deg on a loaded
         machine); held at the worst, 19-23 deg. A stall's burst (an 80 ms stall read 55 ms for a few periods) is
-        not sustained: held, it would have cut the rest of the flight to a tenth."""
+        not sustained: held whole, it would have cut the rest of the flight to a tenth (:data:`MOMENT_HELD`)."""
         self.phase = Phase.PREFLIGHT
         self.reason = ""
         self.metrics = FlightMetrics(assembly.n)
@@ -914,7 +919,10 @@ class Flight:
         # 16 deg in a 3 s landing, on the mean 1 deg).
         delay = float(np.nanmean(lat)) + period if lat.size and np.any(np.isfinite(lat)) else math.nan
         if math.isfinite(delay):
-            held = self._sustained_delay.add(t, delay)
+            # Held: the delay sustained for SUSTAINED_S, or a moment's up to twice the bound (a load's blip read
+            # 18 ms and began a landing uncut, on which the link's 25 % loss then tilted the V 45 deg; a stall's
+            # burst of 55 ms held whole cut the gains to a tenth).
+            held = max(self._sustained_delay.add(t, delay), min(delay, MOMENT_HELD * bound))
             if held > bound and (self._cut_delay_s is None or held > self._cut_delay_s):
                 if self._cut_delay_s is None or held > self._said_cut_delay_s * CUT_SAID_AGAIN:
                     cut = delay_limited(gains, held, bound)
