@@ -75,8 +75,9 @@ from groundstation.rotations import matrix_to_quat
 
 CHUNK_BYTES = 32 * 1024
 HEAD_WITNESS_BYTES = 4096
+"""How much of the log's start each flush reads back and the next one checks (its header and metadata)."""
 WITNESS_BYTES = 64
-"""How much of the log's start, and of its newest bytes, each flush reads back and the next one checks."""
+"""How much of the log's newest bytes each flush reads back and the next one checks."""
 FLUSH_S = 1.0
 POLL_S = 0.02
 """Wake-up interval of the feeder when no control loop signals the end of its periods, and of the writer

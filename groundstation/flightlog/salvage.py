@@ -72,7 +72,8 @@ _DATA_LENGTH = struct.Struct("<Q")
 """A chunk body's compressed data length, after the compression name."""
 _CHUNK_OPCODE = bytes([Opcode.CHUNK])
 MAX_RECORD_BYTES = 1 << 30
-"""Largest record (and decompressed chunk) read: a damaged length field must not ask for the whole disk."""
+"""Largest record read: a damaged length field must not ask for the whole disk (a decompressed chunk:
+:data:`MAX_CHUNK_BYTES`)."""
 MAX_CHUNK_BYTES = 16 << 20
 """Largest decompressed chunk read: our writer closes a chunk past 32 KiB; a chunk declaring 64 MiB of tiny records
 cost replay 59 s and 737 MB from 5.7 KB of file (hostile campaign 33)."""
