@@ -229,7 +229,7 @@ def test_commands_ways_swapped_back_and_forth_every_60_ms_are_followed():
             hold(be, u, 0.02)
             now = _applied(peer)
             own += now[0].mean() < now[1].mean()
-        assert own >= 5 and be.telemetry().link_ok, own  # measured 12-20 idle; each swap starves ~5 states
+        assert own >= 5 and be.telemetry().link_ok, own  # 12 or more of 20 idle (2 runs); each swap starves ~5 states
         be.disarm()
 
 
