@@ -506,8 +506,9 @@ class Flight:
         self._sustained_round_trip = Sustained(SUSTAINED_S)
         """The slowest module's round trip over the last :data:`SUSTAINED_S`."""
         self._cut_delay_s: float | None = None
-        """The longest loop delay sustained for :data:`SUSTAINED_S` beyond the bound that the gains have been cut
-        for (:func:`delay_limited`), s; None while no link was slow. Held for the rest of the flight: a round trip
+        """The longest loop delay beyond the bound that the gains have been cut for (:func:`delay_limited`): one
+        sustained for :data:`SUSTAINED_S`, or a moment's up to :data:`MOMENT_HELD` times the bound, s; None while no
+        link was slow. Held for the rest of the flight: a round trip
         that wobbles back under the bound, or goes unmeasured (NaN) while a relay's answers change, is not a faster
         link. Recut at each period from the newest round trip, a relay answering the probes and holding the rest
         10 ms each way (measured 16-18 ms against its 20) swung the landing 25 deg at 4 Hz (38 deg on a loaded
